@@ -1,0 +1,235 @@
+"""Sub-models made from an ODE right-hand side and an internal solver (thesis 4.1).
+
+The master chooses the communication step ``h`` (the thesis's ΔT); the internal solver takes its
+own local steps Δt inside it. ``RK4`` uses a fixed number of equal sub-steps (Δt = ΔT / n, an
+integer fraction as in thesis 4.1); ``SolveIvp`` uses SciPy's adaptive solvers with tolerances.
+
+Inputs follow the polynomial the master sets (value and up to two derivatives), so higher-order
+input extrapolation actually reaches the equations — the analogue of FMI's
+``setRealInputDerivatives``. Parameters may change at given times; a step that straddles such a
+time is integrated piecewise, so the sub-model stays exact even if a master does not land on it.
+"""
+
+from __future__ import annotations
+
+import bisect
+import itertools
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from cosimstep.submodel import Capabilities, Port, SubModel
+
+Rhs = Callable[[float, np.ndarray, np.ndarray, Mapping[str, float]], np.ndarray]
+"""``rhs(t, x, u, p) -> dx/dt`` with states ``x``, inputs ``u`` and parameters ``p``."""
+
+
+class ParameterSchedule:
+    """Parameter values that change at given times (the thesis's "toggled" dynamics).
+
+    ``changes`` is a sequence of ``(time, {name: value})``; a change holds from its time until the
+    next one. Values at exactly a change time belong to the new segment.
+    """
+
+    def __init__(
+        self,
+        base: Mapping[str, float],
+        changes: Sequence[tuple[float, Mapping[str, float]]] = (),
+    ) -> None:
+        ordered = sorted(changes, key=lambda c: c[0])
+        self.times: list[float] = [float(t) for t, _ in ordered]
+        self._segments: list[dict[str, float]] = [dict(base)]
+        for _, values in ordered:
+            self._segments.append({**self._segments[-1], **values})
+
+    def at(self, t: float) -> dict[str, float]:
+        return self._segments[bisect.bisect_right(self.times, t)]
+
+    def breakpoints(self, t0: float, t1: float) -> list[float]:
+        """Change times strictly inside ``(t0, t1)``."""
+        return [t for t in self.times if t0 < t < t1]
+
+
+class InternalSolver(Protocol):
+    """Advances ``dx/dt = f(t, x)`` from ``t0`` to ``t1``; the sub-model's own business."""
+
+    def advance(self, f: Callable[[float, np.ndarray], np.ndarray], t0: float, t1: float,
+                x: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class RK4:
+    """Classical Runge–Kutta with ``n`` equal local steps per communication step.
+
+    ``n = max(substeps, ceil(h / max_dt))``: a fixed count, or a fixed largest local step.
+    """
+
+    substeps: int = 1
+    max_dt: float | None = None
+
+    def advance(self, f: Callable[[float, np.ndarray], np.ndarray], t0: float, t1: float,
+                x: np.ndarray) -> np.ndarray:
+        h = t1 - t0
+        n = self.substeps
+        if self.max_dt is not None:
+            n = max(n, math.ceil(h / self.max_dt - 1e-9))
+        dt = h / n
+        for i in range(n):
+            t = t0 + i * dt
+            k1 = f(t, x)
+            k2 = f(t + 0.5 * dt, x + 0.5 * dt * k1)
+            k3 = f(t + 0.5 * dt, x + 0.5 * dt * k2)
+            k4 = f(t + dt, x + dt * k3)
+            x = x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        return x
+
+
+@dataclass(frozen=True)
+class SolveIvp:
+    """SciPy ``solve_ivp`` inside every communication step, with its own tolerances."""
+
+    method: str = "RK45"
+    rtol: float = 1e-8
+    atol: float = 1e-10
+
+    def advance(self, f: Callable[[float, np.ndarray], np.ndarray], t0: float, t1: float,
+                x: np.ndarray) -> np.ndarray:
+        sol = solve_ivp(f, (t0, t1), x, method=self.method, rtol=self.rtol, atol=self.atol)
+        if not sol.success:
+            raise RuntimeError(f"internal solver {self.method} failed: {sol.message}")
+        return sol.y[:, -1]
+
+
+def make_solver(spec: Mapping[str, Any] | None) -> InternalSolver:
+    """Build an internal solver from a configuration mapping such as ``{"method": "rk4"}``."""
+    spec = dict(spec or {})
+    method = str(spec.pop("method", "rk4")).lower()
+    if method == "rk4":
+        return RK4(**spec)
+    return SolveIvp(method=method.upper() if method in ("rk45", "rk23", "dop853") else method,
+                    **spec)
+
+
+class OdeSubModel(SubModel):
+    """A sub-model ``dx/dt = rhs(t, x, u(t), p(t))`` whose outputs are (some of) its states.
+
+    Parameters
+    ----------
+    rhs:
+        Right-hand side ``rhs(t, x, u, p)``.
+    states:
+        One port per state; ``start`` is the initial value and ``unit`` its unit.
+    inputs:
+        Input ports, in the order ``u`` is passed to ``rhs``.
+    outputs:
+        Names of the states exposed as outputs (default: all states).
+    parameters:
+        A :class:`ParameterSchedule` (or a plain mapping for constant parameters).
+    solver:
+        The internal solver, :class:`RK4` or :class:`SolveIvp`.
+    """
+
+    def __init__(
+        self,
+        rhs: Rhs,
+        states: Sequence[Port],
+        inputs: Sequence[Port] = (),
+        outputs: Sequence[str] | None = None,
+        parameters: ParameterSchedule | Mapping[str, float] | None = None,
+        solver: InternalSolver | None = None,
+    ) -> None:
+        self._rhs = rhs
+        self._states = tuple(states)
+        self.inputs = tuple(inputs)
+        names = [s.name for s in self._states]
+        chosen = list(outputs) if outputs is not None else names
+        unknown = [o for o in chosen if o not in names]
+        if unknown:
+            raise ValueError(f"`outputs` names unknown states {unknown}; states are {names}")
+        self._out_idx = np.array([names.index(o) for o in chosen], dtype=int)
+        self.outputs = tuple(self._states[i] for i in self._out_idx)
+        if not isinstance(parameters, ParameterSchedule):
+            parameters = ParameterSchedule(parameters or {})
+        self.parameters = parameters
+        self.solver: InternalSolver = solver or RK4()
+        self.capabilities = Capabilities(
+            can_save_state=True, provides_derivatives=True, max_input_derivative_order=2
+        )
+        n_in = len(self.inputs)
+        self._u = np.array([p.start if p.start is not None else 0.0 for p in self.inputs], float)
+        self._du = np.zeros((2, n_in))
+        self._x = np.array([s.start if s.start is not None else 0.0 for s in self._states], float)
+        self._t = 0.0
+
+    # -- SubModel API ----------------------------------------------------------------------
+    def initialize(self, t0: float) -> None:
+        self._t = float(t0)
+        self._x = np.array([s.start if s.start is not None else 0.0 for s in self._states], float)
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        self._u = np.array(values, dtype=float)
+        self._du[:] = 0.0
+
+    def set_input_derivatives(self, derivatives: np.ndarray) -> None:
+        d = np.asarray(derivatives, dtype=float)
+        self._du[:] = 0.0
+        self._du[: d.shape[0]] = d[:2]
+
+    def do_step(self, t: float, h: float) -> None:
+        t_start, u0, du = self._t, self._u, self._du
+        has_slope = bool(du.any())
+
+        def inputs_at(s: float) -> np.ndarray:
+            if not has_slope:
+                return u0
+            dt = s - t_start
+            return u0 + dt * du[0] + (0.5 * dt * dt) * du[1]
+
+        x = self._x
+        rhs = self._rhs
+        cuts = [t, *self.parameters.breakpoints(t, t + h), t + h]
+        for a, b in itertools.pairwise(cuts):
+            p = self.parameters.at(a)
+            x = self.solver.advance(lambda s, y, p=p: rhs(s, y, inputs_at(s), p), a, b, x)
+        self._x = np.asarray(x, dtype=float)
+        self._t = t + h
+        # The input polynomial is re-expanded around the new time so outputs and derivatives
+        # read now see the inputs valid now.
+        dt = self._t - t_start
+        self._u = u0 + dt * du[0] + 0.5 * dt * dt * du[1]
+        self._du = np.array([du[0] + dt * du[1], du[1]])
+
+    def get_outputs(self) -> np.ndarray:
+        return self._x[self._out_idx]
+
+    def get_output_derivatives(self) -> np.ndarray:
+        dx = self._rhs(self._t, self._x, self._u, self.parameters.at(self._t))
+        return np.asarray(dx, dtype=float)[self._out_idx]
+
+    def save_state(self) -> Any:
+        return (self._t, self._x.copy(), self._u.copy(), self._du.copy())
+
+    def restore_state(self, token: Any) -> None:
+        t, x, u, du = token
+        self._t, self._x, self._u, self._du = t, x.copy(), u.copy(), du.copy()
+
+    def time_events(self) -> Sequence[float]:
+        return tuple(self.parameters.times)
+
+    @property
+    def state_ports(self) -> tuple[Port, ...]:
+        return self._states
+
+    def derivative(self, t: float, x: np.ndarray, u: np.ndarray,
+                   p: Mapping[str, float]) -> np.ndarray:
+        """The right-hand side itself (used by the monolithic reference solver)."""
+        return np.asarray(self._rhs(t, x, u, p), dtype=float)
+
+    @property
+    def state(self) -> np.ndarray:
+        """Current state vector (for inspection and tests)."""
+        return self._x.copy()

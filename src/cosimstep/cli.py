@@ -1,0 +1,173 @@
+"""Command line: ``cosimstep run | validate | plot | demo | models``.
+
+Exit codes: 0 success, 1 the run failed (a sub-model failed, a step could not be taken), 2 the
+configuration or the command line is wrong (every problem listed).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import click
+
+from cosimstep.config import SystemSpec, load_system
+from cosimstep.controllers import CONTROLLERS, make_controller
+from cosimstep.errors import ConfigurationError
+from cosimstep.masters import MASTERS, MasterOptions
+from cosimstep.simulate import SimulationResult, simulate
+
+EXIT_FAILED, EXIT_CONFIG = 1, 2
+
+
+def _config_exit(exc: ConfigurationError) -> None:
+    click.echo(str(exc), err=True)
+    sys.exit(EXIT_CONFIG)
+
+
+def _load(path: str, until: float | None = None) -> SystemSpec:
+    try:
+        return load_system(path, until)
+    except ConfigurationError as exc:
+        _config_exit(exc)
+        raise  # unreachable
+
+
+@click.group()
+@click.version_option(package_name="cosimstep")
+def main() -> None:
+    """cosimstep: adaptive, multi-rate co-simulation of black-box sub-models."""
+
+
+@main.command()
+@click.argument("system", type=click.Path(dir_okay=False))
+@click.option("--until", type=float, help="End time [s] (default: the file's `until`).")
+@click.option("--master", type=click.Choice(MASTERS), help="Coupling scheme.")
+@click.option("--extrapolation", type=click.IntRange(0, 2), help="Input extrapolation order.")
+@click.option("--controller", type=click.Choice(sorted(CONTROLLERS)), help="Step controller.")
+@click.option("--step", type=float, help="Fixed step (controller fixed) or initial step [s].")
+@click.option("--tol", type=float, help="Tolerance of an adaptive controller.")
+@click.option("--seed", type=int, help="Seed of the random controller.")
+@click.option("--out", type=click.Path(dir_okay=False), help="SQLite results file "
+              "(default: <system name>.db in the current directory).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON summary object.")
+def run(system: str, until: float | None, master: str | None, extrapolation: int | None,
+        controller: str | None, step: float | None, tol: float | None, seed: int | None,
+        out: str | None, as_json: bool) -> None:
+    """Co-simulate SYSTEM (a TOML system file)."""
+    spec = _load(system, until)
+    result = _run(spec, master, extrapolation, controller, step, tol, seed, out)
+    _report(result, as_json)
+    sys.exit(0 if result.success else EXIT_FAILED)
+
+
+def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
+         controller: str | None, step: float | None, tol: float | None, seed: int | None,
+         out: str | None) -> SimulationResult:
+    opts = spec.master
+    opts = MasterOptions(master or opts.name,
+                         opts.extrapolation if extrapolation is None else extrapolation,
+                         opts.order, opts.call_timeout)
+    settings: dict[str, Any] = dict(spec.controller)
+    if controller is not None and controller != settings.get("name"):
+        settings = {"name": controller}  # options in the file belong to another controller
+    if step is not None:
+        settings["step"] = step
+    if tol is not None:
+        settings["tol"] = tol
+    if seed is not None:
+        settings["seed"] = seed
+    name = settings.pop("name", "fixed")
+    try:
+        ctrl = make_controller(name, settings.pop("step", None), settings.pop("tol", None),
+                               **settings)
+    except (TypeError, ValueError) as exc:
+        _config_exit(ConfigurationError(
+            [_problem("controller", str(exc), "see `cosimstep run --help`")], spec.source))
+    store = out or f"{spec.name}.db"
+    return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=store,
+                    name=spec.name, config={"source": spec.source, "system": spec.raw},
+                    progress=None)
+
+
+def _problem(where: str, what: str, fix: str) -> Any:
+    from cosimstep.errors import Problem
+
+    return Problem(where, what, fix)
+
+
+def _report(result: SimulationResult, as_json: bool) -> None:
+    summary = result.summary()
+    if as_json:
+        click.echo(json.dumps(summary, indent=2))
+        return
+    click.echo(f"status: {summary['status']} — {summary['message']}")
+    click.echo(f"t_end: {summary['t_end']:.6g} s   calls: {summary['calls_total']} "
+               f"({', '.join(f'{k} {v}' for k, v in summary['calls'].items())})")
+    click.echo(f"steps: {summary['steps_accepted']} accepted, {summary['steps_rejected']} "
+               f"rejected, h in [{summary['h_min']}, {summary['h_max']}]")
+    if "error" in summary:
+        e = summary["error"]
+        click.echo(f"error vs monolithic reference: max {e['max_abs']:.3e}, rmse {e['rmse']:.3e}")
+    click.echo(f"wall: {summary['wall_s']:.2f} s   store: {summary['store']}")
+
+
+@main.command()
+@click.argument("system", type=click.Path(dir_okay=False))
+def validate(system: str) -> None:
+    """Check SYSTEM and list every problem (exit 2 if there are any)."""
+    spec = _load(system)
+    click.echo(f"{system}: ok — {len(spec.system.models)} models, "
+               f"{len(spec.system.connections)} connections"
+               + (", with monolithic reference" if spec.reference else ""))
+
+
+@main.command()
+@click.argument("db", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Figure file (.png, .pdf, .svg).")
+@click.option("--run", "run_id", type=int, help="Run id in the store (default: the last).")
+def plot(db: str, output: str, run_id: int | None) -> None:
+    """Plot a stored run: states above, step size below."""
+    from cosimstep.plotting import plot_run
+    from cosimstep.store import read_run
+
+    try:
+        stored = read_run(db, run_id)
+    except (FileNotFoundError, LookupError) as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(EXIT_CONFIG)
+    click.echo(f"wrote {plot_run(stored, output)}")
+
+
+@main.command()
+@click.option("--out", default="cosimstep-demo", show_default=True,
+              type=click.Path(file_okay=False), help="Folder for the results and the figure.")
+def demo(out: str) -> None:
+    """Run the embedded double pendulum example and plot it."""
+    from cosimstep.plotting import plot_run
+    from cosimstep.store import read_run
+
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    example = resources.files("cosimstep") / "examples" / "double_pendulum_slow.toml"
+    with resources.as_file(example) as path:
+        spec = _load(str(path))
+    db = folder / "double_pendulum_slow.db"
+    db.unlink(missing_ok=True)
+    result = _run(spec, None, None, None, None, None, None, str(db))
+    _report(result, False)
+    click.echo(f"figure: {plot_run(read_run(db), folder / 'double_pendulum_slow.png')}")
+    sys.exit(0 if result.success else EXIT_FAILED)
+
+
+@main.command("models")
+def list_models() -> None:
+    """List the built-in sub-model types."""
+    from cosimstep.models import REGISTRY
+
+    for name, kind in sorted(REGISTRY.items()):
+        click.echo(f"{name:28s} {kind.description}")

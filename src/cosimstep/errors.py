@@ -1,0 +1,47 @@
+"""Error types.
+
+Build-time problems (a wrong system description) are kept apart from run-time trouble (a
+sub-model that fails while stepping): the first is raised with *every* problem listed so a user
+fixes the file once; the second ends a run with a status and keeps the results computed so far.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One configuration problem: where it is, what is wrong and how to fix it."""
+
+    where: str
+    what: str
+    fix: str = ""
+
+    def __str__(self) -> str:
+        text = f"{self.where}: {self.what}"
+        return f"{text} (fix: {self.fix})" if self.fix else text
+
+
+class ConfigurationError(ValueError):
+    """A system description is wrong; ``problems`` lists every problem found, not just the first."""
+
+    def __init__(self, problems: list[Problem], source: str | None = None) -> None:
+        self.problems = list(problems)
+        self.source = source
+        head = f"{len(self.problems)} problem(s) in {source or 'the system'}:"
+        super().__init__("\n".join([head, *(f"  - {p}" for p in self.problems)]))
+
+
+class SubModelError(RuntimeError):
+    """A sub-model failed during a run (raised, returned NaN, or exceeded its time budget)."""
+
+    def __init__(self, model: str, t: float, reason: str) -> None:
+        self.model = model
+        self.t = t
+        self.reason = reason
+        super().__init__(f"sub-model '{model}' failed at t = {t:.9g}: {reason}")
+
+
+class StepSizeError(RuntimeError):
+    """A step controller cannot continue (for example the step fell below its minimum)."""

@@ -1,0 +1,217 @@
+"""Coupling algorithms: how one communication step ``[t, t + h]`` is executed (thesis 3.3.2).
+
+* **Jacobi**: every sub-model steps on its partners' values extrapolated from the history up to
+  ``t`` — the sub-models are independent within a step (they could run in parallel).
+* **Gauss–Seidel**: sub-models step one after another; a later one uses the fresh values of those
+  already stepped (interpolated over the step instead of extrapolated).
+
+A master executes calls and counts them; it does not decide the step size (controllers do) nor
+keep the history (the orchestrator does). It can save and restore every sub-model's state, which
+is what rejecting and re-running a step needs.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from cosimstep.errors import SubModelError
+from cosimstep.extrapolation import evaluate, taylor_coefficients
+from cosimstep.system import CompiledSystem
+
+MASTERS = ("jacobi", "gauss-seidel")
+
+
+@dataclass(frozen=True)
+class MasterOptions:
+    """How steps are executed.
+
+    Attributes
+    ----------
+    name:
+        ``"jacobi"`` or ``"gauss-seidel"`` (default: measured more accurate at equal calls).
+    extrapolation:
+        Order of the input polynomial over a step: 0 hold, 1 linear, 2 quadratic (default: the
+        accurate one; see docs/concepts.md for the measured orders).
+    order:
+        Gauss–Seidel execution order by model name (default: the order models were added).
+    call_timeout:
+        Seconds one ``do_step`` may take before the run ends as failed (``None``: no limit). A
+        timed-out call is abandoned in its worker thread.
+    """
+
+    name: str = "gauss-seidel"
+    extrapolation: int = 2
+    order: tuple[str, ...] | None = None
+    call_timeout: float | None = None
+
+    def problems(self) -> list[str]:
+        out = []
+        if self.name not in MASTERS:
+            out.append(f"unknown master '{self.name}'; choose one of {', '.join(MASTERS)}")
+        if self.extrapolation not in (0, 1, 2):
+            out.append(f"extrapolation order {self.extrapolation} is not 0, 1 or 2")
+        if self.call_timeout is not None and not self.call_timeout > 0:
+            out.append("call_timeout must be positive")
+        return out
+
+
+class _TimedCaller:
+    """Runs calls in one daemon worker thread so a hanging sub-model cannot hang the master."""
+
+    def __init__(self, timeout: float) -> None:
+        self.timeout = timeout
+        self._jobs: queue.Queue = queue.Queue()
+        self._worker = threading.Thread(target=self._loop, daemon=True)
+        self._worker.start()
+
+    def _loop(self) -> None:
+        while True:
+            fn, args, box, done = self._jobs.get()
+            try:
+                box.append((True, fn(*args)))
+            except BaseException as exc:
+                box.append((False, exc))
+            done.set()
+
+    def __call__(self, fn: Any, *args: Any) -> Any:
+        box: list = []
+        done = threading.Event()
+        self._jobs.put((fn, args, box, done))
+        if not done.wait(self.timeout):
+            raise TimeoutError(f"no answer within {self.timeout:g} s (call abandoned)")
+        ok, value = box[0]
+        if not ok:
+            raise value
+        return value
+
+
+class Master:
+    """Executes communication steps over a compiled system."""
+
+    def __init__(self, system: CompiledSystem, options: MasterOptions = MasterOptions()) -> None:
+        problems = options.problems()
+        if problems:
+            raise ValueError("; ".join(problems))
+        self.system = system
+        self.options = options
+        n = len(system.models)
+        self.calls = np.zeros(n, dtype=np.int64)
+        self.time_in_models = np.zeros(n)
+        if options.order is None:
+            self.sequence = list(range(n))
+        else:
+            self.sequence = [system.names.index(m) for m in options.order]
+            self.sequence += [k for k in range(n) if k not in self.sequence]
+        self._deriv_order = [min(options.extrapolation, m.capabilities.max_input_derivative_order)
+                             for m in system.models]
+        self._call = _TimedCaller(options.call_timeout) if options.call_timeout else None
+
+    # -- life cycle --------------------------------------------------------------------------
+    def initialize(self, t0: float) -> np.ndarray:
+        """Initialize every sub-model and return the exchanged values at ``t0``."""
+        for k, model in enumerate(self.system.models):
+            self._guard(k, t0, model.initialize, t0)
+        y = np.empty(self.system.n_outputs)
+        for k, model in enumerate(self.system.models):
+            y[self.system.output_slices[k]] = self._guard(k, t0, model.get_outputs)
+        self._settle_feedthrough(t0, y)
+        self._check_finite(range(len(self.system.models)), t0, y)
+        return y
+
+    def terminate(self) -> None:
+        for model in self.system.models:
+            try:
+                model.terminate()
+            except Exception:
+                pass
+
+    def save(self) -> list[Any]:
+        return [m.save_state() for m in self.system.models]
+
+    def restore(self, tokens: Sequence[Any]) -> None:
+        for m, token in zip(self.system.models, tokens):
+            m.restore_state(token)
+
+    # -- one communication step --------------------------------------------------------------
+    def step(self, t: float, h: float, times: Sequence[float], history: np.ndarray) -> np.ndarray:
+        """Advance every sub-model from ``t`` to ``t + h``; return the new exchanged values.
+
+        ``times``/``history`` are the stored points (the last row belongs to ``t``).
+        """
+        p = self.options.extrapolation
+        coef = taylor_coefficients(times, history, t, p)
+        y_new = history[-1].copy()
+        gauss_seidel = self.options.name == "gauss-seidel"
+        for k in self.sequence:
+            self._step_model(k, t, h, coef)
+            out = self.system.output_slices[k]
+            y_new[out] = self._guard(k, t + h, self.system.models[k].get_outputs)
+            if gauss_seidel:
+                # Later models see this model's fresh values: interpolate through t + h.
+                pts = [*times[-p:], t + h] if p > 0 else [t + h]
+                vals = np.vstack([history[-p:, out], y_new[out]]) if p > 0 else y_new[None, out]
+                coef[:, out] = taylor_coefficients(pts, vals, t, p)
+        self._settle_feedthrough(t + h, y_new)
+        self._check_finite(range(len(self.system.models)), t + h, y_new)
+        return y_new
+
+    def _step_model(self, k: int, t: float, h: float, coef: np.ndarray) -> None:
+        system = self.system
+        model = system.models[k]
+        src, a, b = system.src[k], system.a[k], system.b[k]
+        q = self._deriv_order[k]
+        if q > 0 or coef.shape[0] == 1:
+            u = a * coef[0, src] + b
+        else:
+            # The sub-model holds inputs constant: give it the extrapolated mid-step value,
+            # which is second-order accurate over the step where the start value is first-order.
+            u = a * evaluate(coef[:, src], 0.5 * h) + b
+        start = time.perf_counter()
+        self.calls[k] += 1
+        self._guard(k, t, model.set_inputs, u)
+        if q > 0:
+            self._guard(k, t, model.set_input_derivatives, a * coef[1:q + 1, src])
+        self._guard(k, t, model.do_step, t, h)
+        self.time_in_models[k] += time.perf_counter() - start
+
+    def _settle_feedthrough(self, t: float, y: np.ndarray) -> None:
+        """Refresh direct-feedthrough outputs from inputs at ``t`` (no step, no call)."""
+        system = self.system
+        for k in system.feedthrough_order:
+            u = system.a[k] * y[system.src[k]] + system.b[k]
+            self._guard(k, t, system.models[k].set_inputs, u)
+            y[system.output_slices[k]] = self._guard(k, t, system.models[k].get_outputs)
+
+    def _check_finite(self, models: Any, t: float, y: np.ndarray) -> None:
+        if np.all(np.isfinite(y)):
+            return
+        for k in models:
+            block = y[self.system.output_slices[k]]
+            if not np.all(np.isfinite(block)):
+                bad = [self.system.output_names[self.system.output_slices[k].start + i]
+                       for i in np.flatnonzero(~np.isfinite(block))]
+                raise SubModelError(self.system.names[k], t,
+                                    f"returned non-finite output(s) {', '.join(bad)}")
+
+    def _guard(self, k: int, t: float, fn: Any, *args: Any) -> Any:
+        try:
+            if self._call is not None:
+                return self._call(fn, *args)
+            return fn(*args)
+        except SubModelError:
+            raise
+        except Exception as exc:
+            raise SubModelError(self.system.names[k], t,
+                                f"{type(exc).__name__}: {exc}") from exc
+
+    @property
+    def max_step(self) -> float:
+        return min((m.capabilities.max_step for m in self.system.models), default=math.inf)

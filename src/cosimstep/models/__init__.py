@@ -1,0 +1,51 @@
+"""Built-in sub-models, registered by the ``type`` name a system file uses.
+
+Each entry knows its parameters (with defaults) and the start values it reads, so a system file
+can be checked before anything runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from functools import partial
+
+from cosimstep.adapters.ode import InternalSolver, ParameterSchedule
+from cosimstep.models import pendulum
+from cosimstep.submodel import SubModel
+
+Builder = Callable[[ParameterSchedule, Mapping[str, float], InternalSolver | None], SubModel]
+
+
+@dataclass(frozen=True)
+class ModelKind:
+    """A built-in sub-model type."""
+
+    name: str
+    description: str
+    parameters: Mapping[str, float]
+    start: tuple[str, ...]
+    build: Builder
+
+
+REGISTRY: dict[str, ModelKind] = {}
+
+
+def register(kind: ModelKind) -> ModelKind:
+    REGISTRY[kind.name] = kind
+    return kind
+
+
+def _chain_start(n: int) -> tuple[str, ...]:
+    return tuple(f"theta{i}" for i in range(1, n + 1)) + tuple(
+        f"omega{i}" for i in range(1, n + 1))
+
+
+for _n, _label in ((2, "double_pendulum"), (3, "triple_pendulum")):
+    register(ModelKind(
+        _label, f"{_n}-bar pendulum, monolithic (all bars in one model)",
+        pendulum.default_parameters(_n), _chain_start(_n), partial(pendulum.monolithic, _n)))
+    for _i in range(1, _n + 1):
+        register(ModelKind(
+            f"{_label}.bar{_i}", f"bar {_i} of the {_n}-bar pendulum, split model",
+            pendulum.default_parameters(_n), _chain_start(_n), partial(pendulum.bar, _n, _i)))

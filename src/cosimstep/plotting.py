@@ -1,0 +1,65 @@
+"""Figures in the style of the thesis: exchanged states above, communication step below."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from cosimstep.store import StoredRun
+
+
+def plot_run(run: StoredRun, path: str | Path, variables: list[str] | None = None) -> Path:
+    """Write a PNG/PDF/SVG of a stored run and return its path.
+
+    Angles/positions and their rates get separate panels when units differ, the monolithic
+    reference (if stored) is dashed, and rejected step attempts appear as crosses.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = variables or run.names
+    units = list(dict.fromkeys(run.units[run.names.index(n)] for n in names))
+    fig, axes = plt.subplots(len(units) + 1, 1, sharex=True, figsize=(9, 2.6 * (len(units) + 1)),
+                             constrained_layout=True)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, unit in zip(axes, units):
+        for i, n in enumerate(names):
+            j = run.names.index(n)
+            if run.units[j] != unit:
+                continue
+            c = colours[i % len(colours)]
+            ax.plot(run.times, run.values[:, j], color=c, lw=1.2, label=n)
+            if run.reference is not None and not np.isnan(run.reference[:, j]).all():
+                ax.plot(run.times, run.reference[:, j], color=c, lw=0.8, ls="--",
+                        label=f"{n} (monolithic)")
+        ax.set_ylabel(f"[{unit}]")
+        ax.legend(fontsize=7, ncol=2, loc="upper right")
+        ax.grid(alpha=0.3)
+    ax = axes[-1]
+    att = run.attempts
+    if att.size:
+        ok = att[:, 2] > 0
+        ax.step(att[ok, 0], att[ok, 1], where="post", lw=1, color="k", label="accepted step")
+        if (~ok).any():
+            ax.plot(att[~ok, 0], att[~ok, 1], "rx", ms=4, label="rejected attempt")
+        if att[:, 1].max() > 5 * att[:, 1].min():
+            ax.set_yscale("log")
+        else:
+            ax.set_ylim(0, 1.3 * att[:, 1].max())
+        ax.legend(fontsize=7, loc="upper right")
+    ax.set_ylabel("step ΔT [s]")
+    ax.set_xlabel("T [s]")
+    ax.grid(alpha=0.3)
+    err = run.summary.get("error")
+    title = f"{run.system} — {run.status}, {run.summary.get('calls_total', '?')} calls"
+    if err:
+        title += f", max error {err['max_abs']:.2e} vs monolithic"
+    axes[0].set_title(title, fontsize=10)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

@@ -1,0 +1,280 @@
+"""Orchestration: the loop that advances a coupled system in time.
+
+The loop asks the controller for an attempt at each step, lands steps on the sub-models' time
+events and the end time, records every attempt and every accepted point in the store, and turns
+sub-model failures, step-size failures and Ctrl-C into a result with a status and the values
+computed so far — never into a lost run.
+"""
+
+from __future__ import annotations
+
+import bisect
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cosimstep.controllers import Controller
+from cosimstep.errors import StepSizeError, SubModelError
+from cosimstep.masters import Master, MasterOptions
+from cosimstep.reference import ErrorReport, Reference, error_report
+from cosimstep.store import Store
+from cosimstep.system import System
+
+HISTORY_ROWS = 4  # stored points handed to controllers/masters for extrapolation
+
+
+@dataclass
+class SimulationResult:
+    """What a run produced. ``status`` is ``"ok"``, ``"failed"`` or ``"interrupted"``."""
+
+    status: str
+    message: str
+    t_end: float
+    names: list[str]
+    units: list[str]
+    times: np.ndarray
+    values: np.ndarray
+    calls: dict[str, int]
+    steps_accepted: int
+    steps_rejected: int
+    step_sizes: np.ndarray
+    wall_s: float
+    time_in_models: dict[str, float]
+    store: str | None = None
+    error: ErrorReport | None = None
+    reference: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def success(self) -> bool:
+        return self.status == "ok"
+
+    @property
+    def calls_total(self) -> int:
+        return int(sum(self.calls.values()))
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        """Trajectory of an exchanged output, e.g. ``result["bar1.theta"]``."""
+        try:
+            return self.values[:, self.names.index(name)]
+        except ValueError:
+            raise KeyError(f"no output '{name}'; outputs: {', '.join(self.names)}") from None
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON summary the CLI prints with ``--json``."""
+        steps = self.step_sizes
+        out: dict[str, Any] = {
+            "status": self.status,
+            "message": self.message,
+            "t_end": self.t_end,
+            "calls": dict(self.calls),
+            "calls_total": self.calls_total,
+            "steps_accepted": self.steps_accepted,
+            "steps_rejected": self.steps_rejected,
+            "h_min": float(steps.min()) if steps.size else None,
+            "h_max": float(steps.max()) if steps.size else None,
+            "wall_s": self.wall_s,
+            "master_overhead_s": max(self.wall_s - sum(self.time_in_models.values()), 0.0),
+            "store": self.store,
+        }
+        if self.error is not None:
+            out["error"] = self.error.to_dict()
+        return out
+
+    def to_pandas(self):
+        import pandas as pd
+
+        return pd.DataFrame(self.values, index=pd.Index(self.times, name="t"), columns=self.names)
+
+
+class _Context:
+    """The :class:`~cosimstep.controllers.StepContext` the loop hands to controllers."""
+
+    def __init__(self, master: Master) -> None:
+        self.master = master
+        self.times: list[float] = []
+        self.rows: list[np.ndarray] = []
+        self.history = np.empty((0, 0))
+
+    def push(self, t: float, y: np.ndarray) -> None:
+        self.times.append(t)
+        self.rows.append(y)
+        self.history = np.array(self.rows[-HISTORY_ROWS:])
+
+    def step(self, t: float, h: float) -> np.ndarray:
+        return self.master.step(t, h, self.times, self.history)
+
+    def save(self) -> Any:
+        return self.master.save()
+
+    def restore(self, token: Any) -> None:
+        self.master.restore(token)
+
+
+class _Clock:
+    """Compensated (Neumaier) sum of the steps: 10^4 steps of 0.001 end at 10.0, not 10 - 1e-12."""
+
+    def __init__(self, t0: float) -> None:
+        self._sum, self._carry = t0, 0.0
+
+    def add(self, h: float) -> None:
+        s = self._sum + h
+        if abs(self._sum) >= abs(h):
+            self._carry += (self._sum - s) + h
+        else:
+            self._carry += (h - s) + self._sum
+        self._sum = s
+
+    @property
+    def value(self) -> float:
+        return self._sum + self._carry
+
+
+def _next_landing(events: list[float], t: float, t_end: float) -> float:
+    i = bisect.bisect_right(events, t + 1e-12 * max(1.0, abs(t)))
+    return min(events[i], t_end) if i < len(events) else t_end
+
+
+def simulate(
+    system: System,
+    until: float,
+    controller: Controller,
+    master: MasterOptions | None = None,
+    *,
+    t0: float = 0.0,
+    reference: Reference | None = None,
+    store: str | Path | None = None,
+    name: str = "system",
+    config: dict[str, Any] | None = None,
+    progress: bool | None = False,
+    raise_on_failure: bool = False,
+) -> SimulationResult:
+    """Co-simulate ``system`` from ``t0`` to ``until``.
+
+    Parameters
+    ----------
+    system:
+        The coupled system (validated here; configuration problems raise
+        :class:`~cosimstep.errors.ConfigurationError`).
+    controller:
+        Decides the communication steps, e.g. ``Fixed(0.001)``.
+    master:
+        Coupling scheme and input extrapolation (default: Jacobi, quadratic extrapolation).
+    reference:
+        Monolithic reference; when given the result carries the error against it.
+    store:
+        SQLite file to write (appended to if it exists); ``None`` keeps results in memory only.
+    progress:
+        Show a progress bar on stderr (``None``: only when stderr is a terminal); it appears only
+        after two seconds, so short runs stay quiet.
+    raise_on_failure:
+        Raise the failure instead of returning a result with ``status = "failed"``.
+    """
+    if not until > t0:
+        raise ValueError(f"`until` ({until}) must be after t0 ({t0})")
+    master = master or MasterOptions()
+    compiled = system.compile()
+    if controller.needs_rollback:
+        unable = [n for n, m in zip(compiled.names, compiled.models)
+                  if not m.capabilities.can_save_state]
+        if unable:
+            raise ValueError(f"controller '{controller.name}' rejects and re-runs steps, but "
+                             f"{', '.join(unable)} cannot save/restore state; choose a "
+                             "controller without rollback (e.g. fixed)")
+    runner = Master(compiled, master)
+    events = sorted({float(e) for m in compiled.models for e in m.time_events() if t0 < e < until})
+    sink = Store(store) if store is not None else None
+    settings = {"t0": t0, "until": until, "master": vars(master),
+                "controller": controller.describe(), **(config or {})}
+    if sink is not None:
+        sink.begin(name, settings, compiled.output_names,
+                   compiled.output_units)
+    ctx = _Context(runner)
+    status, message = "ok", "completed"
+    steps: list[float] = []
+    rejected = 0
+    wall0 = time.perf_counter()
+    bar = _progress(progress, t0, until)
+    t = t0
+    clock = _Clock(t0)
+    failure: BaseException | None = None
+    try:
+        y0 = runner.initialize(t0)
+        ctx.push(t0, y0)
+        if sink is not None:
+            sink.add_point(0, t0, y0)
+        h = controller.initial_step(t0, until)
+        hmax_models = runner.max_step
+        while t < until:
+            landing = _next_landing(events, t, until)
+            h = min(h, hmax_models)
+            if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
+                h = landing - t  # land exactly on the event / end time
+            attempt = controller.attempt(ctx, t, h)
+            if sink is not None:
+                sink.add_attempt(None, t, h, attempt.accepted, attempt.error)
+            if attempt.accepted:
+                clock.add(h)
+                t = landing if abs(clock.value - landing) <= 1e-9 * h else clock.value
+                ctx.push(t, attempt.y)
+                steps.append(h)
+                if sink is not None:
+                    sink.add_point(len(steps), t, attempt.y)
+                if bar is not None:
+                    bar.update(h)
+            else:
+                rejected += 1
+            h = attempt.h_next
+    except SubModelError as exc:
+        status, message, failure = "failed", str(exc), exc
+    except StepSizeError as exc:
+        status, message, failure = "failed", f"at t = {t:.9g}: {exc}", exc
+    except KeyboardInterrupt as exc:
+        status, message, failure = "interrupted", f"interrupted by the user at t = {t:.9g}", exc
+    finally:
+        if bar is not None:
+            bar.close()
+        runner.terminate()
+    wall = time.perf_counter() - wall0
+    times = np.array(ctx.times)
+    values = np.array(ctx.rows) if ctx.rows else np.empty((0, compiled.n_outputs))
+    err, ref_values = None, None
+    if reference is not None and len(times):
+        names = [n for n in compiled.output_names if n in reference.mapping]
+        cols = [compiled.output_names.index(n) for n in names]
+        reference.solve(t0, until)
+        ref_values = reference.values(times, names)
+        err = error_report(times, values[:, cols], ref_values, names)
+        if sink is not None:
+            sink.add_reference(ref_values, cols)
+    result = SimulationResult(
+        status=status, message=message, t_end=float(t), names=compiled.output_names,
+        units=compiled.output_units, times=times, values=values,
+        calls={n: int(c) for n, c in zip(compiled.names, runner.calls)},
+        steps_accepted=len(steps), steps_rejected=rejected, step_sizes=np.array(steps),
+        wall_s=wall, time_in_models={n: float(s) for n, s in
+                                     zip(compiled.names, runner.time_in_models)},
+        store=str(store) if store is not None else None, error=err, reference=ref_values)
+    if sink is not None:
+        sink.finish(status, message, float(t), wall, result.summary(), result.calls,
+                    result.time_in_models)
+        sink.close()
+    if failure is not None and raise_on_failure:
+        raise failure
+    return result
+
+
+def _progress(progress: bool | None, t0: float, until: float) -> Any:
+    if progress is False:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=until - t0, delay=2.0, unit="s", file=sys.stderr,
+                disable=None if progress is None else False,
+                bar_format="{l_bar}{bar}| t={n:.3f}/{total:.3f} s [{elapsed}<{remaining}]")
+
+
+__all__ = ["SimulationResult", "simulate"]

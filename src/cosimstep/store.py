@@ -1,0 +1,198 @@
+"""The results database (thesis 3.2 "data storage"): an SQLite file anyone can query.
+
+Tables (one file can hold many runs)::
+
+    run(id, created, system, config_json, status, message, t_end, wall_s, summary_json)
+    variable(run_id, id, name, unit)                   -- one row per exchanged output
+    point(run_id, step, t)                             -- accepted communication points
+    sample(run_id, step, variable_id, value)           -- every exchanged value at every point
+    reference(run_id, step, variable_id, value)        -- the monolithic reference there, if any
+    attempt(run_id, seq, model, t, h, accepted, error) -- every step attempt, rejected ones too
+    calls(run_id, model, calls, time_in_model_s)
+
+Rows are buffered and committed at least every ``flush_seconds`` of wall time, so a run that is
+interrupted or crashes keeps what it computed up to the last commit.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS run(
+    id INTEGER PRIMARY KEY, created TEXT, system TEXT, config_json TEXT, status TEXT,
+    message TEXT, t_end REAL, wall_s REAL, summary_json TEXT);
+CREATE TABLE IF NOT EXISTS variable(
+    run_id INTEGER, id INTEGER, name TEXT, unit TEXT, PRIMARY KEY(run_id, id));
+CREATE TABLE IF NOT EXISTS point(
+    run_id INTEGER, step INTEGER, t REAL, PRIMARY KEY(run_id, step)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS sample(
+    run_id INTEGER, step INTEGER, variable_id INTEGER, value REAL,
+    PRIMARY KEY(run_id, variable_id, step)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS reference(
+    run_id INTEGER, step INTEGER, variable_id INTEGER, value REAL,
+    PRIMARY KEY(run_id, variable_id, step)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS attempt(
+    run_id INTEGER, seq INTEGER, model TEXT, t REAL, h REAL, accepted INTEGER, error REAL,
+    PRIMARY KEY(run_id, seq)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS calls(
+    run_id INTEGER, model TEXT, calls INTEGER, time_in_model_s REAL,
+    PRIMARY KEY(run_id, model));
+"""
+
+
+class Store:
+    """Writes one run incrementally."""
+
+    def __init__(self, path: str | Path, flush_seconds: float = 0.5) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._db = sqlite3.connect(self.path)
+        self._db.executescript(SCHEMA)
+        self._flush_seconds = flush_seconds
+        self._last_flush = time.monotonic()
+        self._points: list[tuple] = []
+        self._samples: list[tuple] = []
+        self._attempts: list[tuple] = []
+        self._n_vars = 0
+        self._seq = 0
+        self.run_id = -1
+
+    def begin(self, system: str, config: dict[str, Any], names: Sequence[str],
+              units: Sequence[str]) -> int:
+        cur = self._db.execute(
+            "INSERT INTO run(created, system, config_json, status) VALUES (?, ?, ?, 'running')",
+            (datetime.now(UTC).isoformat(), system, json.dumps(config, default=str)))
+        self.run_id = int(cur.lastrowid)
+        self._n_vars = len(names)
+        self._db.executemany("INSERT INTO variable VALUES (?, ?, ?, ?)",
+                             [(self.run_id, i, n, u) for i, (n, u) in enumerate(zip(names, units))])
+        self._db.commit()
+        return self.run_id
+
+    def add_point(self, step: int, t: float, y: np.ndarray) -> None:
+        self._points.append((self.run_id, step, t))
+        rid = self.run_id
+        self._samples.extend((rid, step, i, float(v)) for i, v in enumerate(y))
+        if time.monotonic() - self._last_flush > self._flush_seconds:
+            self.flush()
+
+    def add_attempt(self, model: str | None, t: float, h: float, accepted: bool,
+                    error: float | None) -> None:
+        self._attempts.append((self.run_id, self._seq, model, t, h, int(accepted), error))
+        self._seq += 1
+
+    def flush(self) -> None:
+        db = self._db
+        db.executemany("INSERT INTO point VALUES (?, ?, ?)", self._points)
+        db.executemany("INSERT INTO sample VALUES (?, ?, ?, ?)", self._samples)
+        db.executemany("INSERT INTO attempt VALUES (?, ?, ?, ?, ?, ?, ?)", self._attempts)
+        db.commit()
+        self._points.clear()
+        self._samples.clear()
+        self._attempts.clear()
+        self._last_flush = time.monotonic()
+
+    def add_reference(self, values: np.ndarray, variable_ids: Sequence[int]) -> None:
+        """``values``: (n_points, len(variable_ids)) reference at the stored points."""
+        rows = [(self.run_id, step, vid, float(values[step, j]))
+                for j, vid in enumerate(variable_ids) for step in range(values.shape[0])]
+        self._db.executemany("INSERT INTO reference VALUES (?, ?, ?, ?)", rows)
+
+    def finish(self, status: str, message: str, t_end: float, wall_s: float,
+               summary: dict[str, Any], calls: dict[str, int],
+               time_in_models: dict[str, float]) -> None:
+        self.flush()
+        self._db.executemany("INSERT INTO calls VALUES (?, ?, ?, ?)",
+                             [(self.run_id, m, calls[m], time_in_models[m]) for m in calls])
+        self._db.execute(
+            "UPDATE run SET status=?, message=?, t_end=?, wall_s=?, summary_json=? WHERE id=?",
+            (status, message, t_end, wall_s, json.dumps(summary, default=float), self.run_id))
+        self._db.commit()
+
+    def close(self) -> None:
+        self._db.close()
+
+
+@dataclass
+class StoredRun:
+    """A run read back from a store."""
+
+    run_id: int
+    system: str
+    status: str
+    message: str
+    config: dict[str, Any]
+    summary: dict[str, Any]
+    names: list[str]
+    units: list[str]
+    times: np.ndarray
+    values: np.ndarray
+    reference: np.ndarray | None
+    attempts: np.ndarray  # columns t, h, accepted
+    attempt_models: list[str | None]
+
+    def to_pandas(self):
+        """Exchanged values as a DataFrame indexed by time (needs pandas)."""
+        import pandas as pd
+
+        return pd.DataFrame(self.values, index=pd.Index(self.times, name="t"), columns=self.names)
+
+
+def runs(path: str | Path) -> list[tuple[int, str, str]]:
+    """``(id, system, status)`` of every run in a store."""
+    with sqlite3.connect(path) as db:
+        return [tuple(r) for r in db.execute("SELECT id, system, status FROM run ORDER BY id")]
+
+
+def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
+    """Read a run (default: the last one) back into NumPy arrays."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no results store at {path}")
+    db = sqlite3.connect(path)
+    try:
+        if run_id is None:
+            row = db.execute("SELECT MAX(id) FROM run").fetchone()
+            if row is None or row[0] is None:
+                raise LookupError(f"{path} holds no runs")
+            run_id = int(row[0])
+        meta = db.execute("SELECT system, status, message, config_json, summary_json FROM run "
+                          "WHERE id=?", (run_id,)).fetchone()
+        if meta is None:
+            raise LookupError(f"{path} has no run {run_id}")
+        var = db.execute("SELECT name, unit FROM variable WHERE run_id=? ORDER BY id",
+                         (run_id,)).fetchall()
+        times = np.array([r[0] for r in db.execute(
+            "SELECT t FROM point WHERE run_id=? ORDER BY step", (run_id,))], dtype=float)
+        flat = np.array([r[0] for r in db.execute(
+            "SELECT value FROM sample WHERE run_id=? ORDER BY variable_id, step", (run_id,))],
+            dtype=float)
+        values = flat.reshape(len(var), len(times)).T if len(var) else np.empty((len(times), 0))
+        ref_rows = db.execute("SELECT variable_id, step, value FROM reference WHERE run_id=? "
+                              "ORDER BY variable_id, step", (run_id,)).fetchall()
+        reference = None
+        if ref_rows:
+            reference = np.full((len(times), len(var)), np.nan)
+            for vid, step, value in ref_rows:
+                reference[step, vid] = value
+        att = db.execute("SELECT model, t, h, accepted FROM attempt WHERE run_id=? ORDER BY seq",
+                         (run_id,)).fetchall()
+    finally:
+        db.close()
+    return StoredRun(
+        run_id=run_id, system=meta[0], status=meta[1], message=meta[2] or "",
+        config=json.loads(meta[3] or "{}"), summary=json.loads(meta[4] or "{}"),
+        names=[v[0] for v in var], units=[v[1] for v in var], times=times, values=values,
+        reference=reference,
+        attempts=np.array([(a[1], a[2], a[3]) for a in att], dtype=float).reshape(-1, 3),
+        attempt_models=[a[0] for a in att])

@@ -1,0 +1,215 @@
+"""The system graph: sub-models plus connections output → input (thesis 3.2 "data assignment").
+
+A :class:`System` is built in code (or from a TOML file by :mod:`cosimstep.config`) and checked
+as a whole: :meth:`System.problems` lists *every* problem at once. :meth:`System.compile` turns a
+valid system into flat index tables the masters use in their hot loop.
+"""
+
+from __future__ import annotations
+
+import graphlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cosimstep.errors import ConfigurationError, Problem
+from cosimstep.submodel import SubModel
+from cosimstep.units import UnitError, conversion
+
+
+@dataclass(frozen=True)
+class Connection:
+    """``target = gain * convert_units(source) + offset``."""
+
+    source: str
+    target: str
+    gain: float = 1.0
+    offset: float = 0.0
+    where: str = ""
+
+    @property
+    def label(self) -> str:
+        return self.where or f"connection {self.source} -> {self.target}"
+
+
+def split_address(address: str) -> tuple[str, str]:
+    """``"model.port"`` → ``("model", "port")``; the port part may itself contain dots."""
+    model, sep, port = address.partition(".")
+    if not sep or not model or not port:
+        raise ValueError(f"'{address}' is not of the form model.port")
+    return model, port
+
+
+@dataclass
+class CompiledSystem:
+    """Flat index tables over all outputs of all models (the exchanged-value vector ``Y``).
+
+    For model ``k``, input ``j`` takes ``a[k][j] * Y[src[k][j]] + b[k][j]``; an unconnected input
+    has ``a = 0`` and ``b`` its start value.
+    """
+
+    names: list[str]
+    models: list[SubModel]
+    output_slices: list[slice]
+    output_names: list[str]
+    output_units: list[str]
+    src: list[np.ndarray]
+    a: list[np.ndarray]
+    b: list[np.ndarray]
+    feedthrough_order: list[int]
+
+    @property
+    def n_outputs(self) -> int:
+        return len(self.output_names)
+
+
+@dataclass
+class System:
+    """Sub-models and their connections."""
+
+    models: dict[str, SubModel] = field(default_factory=dict)
+    connections: list[Connection] = field(default_factory=list)
+    origins: dict[str, str] = field(default_factory=dict)
+
+    def add(self, name: str, model: SubModel, where: str = "") -> System:
+        """Add a sub-model under an instance name (the ``model`` in ``model.port``)."""
+        if "." in name or not name:
+            raise ValueError(f"model name `{name}` must be non-empty and contain no '.'")
+        if name in self.models:
+            raise ValueError(f"a model named `{name}` is already in the system")
+        self.models[name] = model
+        self.origins[name] = where or f"model '{name}'"
+        return self
+
+    def connect(self, source: str, target: str, gain: float = 1.0, offset: float = 0.0,
+                where: str = "") -> System:
+        """Connect output ``source`` ("model.port") to input ``target``."""
+        self.connections.append(Connection(source, target, gain, offset, where))
+        return self
+
+    # -- validation --------------------------------------------------------------------------
+    def problems(self) -> list[Problem]:
+        """Every problem in the system; an empty list means it can run."""
+        problems: list[Problem] = []
+        fed: dict[tuple[str, str], Connection] = {}
+        for c in self.connections:
+            problems.extend(self._check_connection(c, fed))
+        for name, model in self.models.items():
+            for port in model.inputs:
+                if (name, port.name) not in fed and port.start is None:
+                    problems.append(Problem(
+                        self.origins[name],
+                        f"input '{name}.{port.name}' is not connected and has no start value",
+                        "connect an output to it or give it a start value"))
+        problems.extend(self._loop_problems())
+        return problems
+
+    def _check_connection(self, c: Connection,
+                          fed: dict[tuple[str, str], Connection]) -> Iterator[Problem]:
+        ends = []
+        for role, address, kind in (("from", c.source, "output"), ("to", c.target, "input")):
+            try:
+                model_name, port_name = split_address(address)
+            except ValueError as exc:
+                yield Problem(c.label, f"`{role}` {exc}", "write it as model.port")
+                continue
+            model = self.models.get(model_name)
+            if model is None:
+                known = ", ".join(sorted(self.models)) or "none"
+                yield Problem(c.label, f"`{role}` names unknown model '{model_name}'",
+                              f"use one of: {known}")
+                continue
+            ports = model.outputs if kind == "output" else model.inputs
+            port = next((p for p in ports if p.name == port_name), None)
+            if port is None:
+                known = ", ".join(p.name for p in ports) or "none"
+                yield Problem(c.label, f"`{role}`: model '{model_name}' has no {kind} "
+                              f"'{port_name}'", f"its {kind}s are: {known}")
+                continue
+            ends.append((model_name, port))
+        if len(ends) != 2:
+            return
+        (_, out_port), (in_model, in_port) = ends
+        key = (in_model, in_port.name)
+        if key in fed:
+            yield Problem(c.label, f"input '{c.target}' already has a source "
+                          f"({fed[key].source})", "an input takes exactly one connection")
+        else:
+            fed[key] = c
+        try:
+            conversion(out_port.unit, in_port.unit)
+        except UnitError as exc:
+            yield Problem(c.label, f"unit mismatch: {exc}",
+                          "connect ports of compatible units or fix the unit declarations")
+
+    def _port_graph(self) -> dict[str, set[str]]:
+        """Dependencies at one instant: an input depends on its source; a feedthrough output on
+        its inputs. A cycle in this graph is an algebraic loop."""
+        graph: dict[str, set[str]] = {}
+        for c in self.connections:
+            graph.setdefault(f"{c.target}", set()).add(f"{c.source}")
+        for name, model in self.models.items():
+            for out, ins in model.capabilities.feedthrough.items():
+                graph.setdefault(f"{name}.{out}", set()).update(f"{name}.{i}" for i in ins)
+        return graph
+
+    def _loop_problems(self) -> list[Problem]:
+        try:
+            tuple(graphlib.TopologicalSorter(self._port_graph()).static_order())
+        except graphlib.CycleError as exc:
+            cycle = " -> ".join(exc.args[1])
+            return [Problem("connections", f"algebraic loop through direct-feedthrough ports: "
+                            f"{cycle}", "break the loop with a model that has no direct "
+                            "feedthrough, or remove one connection")]
+        return []
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigurationError` listing every problem, if there is any."""
+        problems = self.problems()
+        if problems:
+            raise ConfigurationError(problems)
+
+    # -- compilation -------------------------------------------------------------------------
+    def compile(self) -> CompiledSystem:
+        """Validate and build the index tables for a master."""
+        self.validate()
+        names = list(self.models)
+        models = [self.models[n] for n in names]
+        slices, out_names, out_units, offset = [], [], [], 0
+        global_index: dict[str, int] = {}
+        for name, model in zip(names, models):
+            slices.append(slice(offset, offset + len(model.outputs)))
+            for port in model.outputs:
+                global_index[f"{name}.{port.name}"] = offset
+                out_names.append(f"{name}.{port.name}")
+                out_units.append(port.unit)
+                offset += 1
+        by_target = {c.target: c for c in self.connections}
+        src, a, b = [], [], []
+        for name, model in zip(names, models):
+            s = np.zeros(len(model.inputs), dtype=int)
+            ga = np.zeros(len(model.inputs))
+            gb = np.zeros(len(model.inputs))
+            for j, port in enumerate(model.inputs):
+                c = by_target.get(f"{name}.{port.name}")
+                if c is None:
+                    gb[j] = float(port.start)  # validated: unconnected inputs have a start
+                    continue
+                out_model, out_port = split_address(c.source)
+                unit = next(p.unit for p in self.models[out_model].outputs if p.name == out_port)
+                scale, shift = conversion(unit, port.unit)
+                s[j] = global_index[c.source]
+                ga[j] = c.gain * scale
+                gb[j] = c.gain * shift + c.offset
+            src.append(s)
+            a.append(ga)
+            b.append(gb)
+        order: list[int] = []
+        sorter = graphlib.TopologicalSorter(self._port_graph())
+        for node in sorter.static_order():
+            model_name = node.partition(".")[0]
+            k = names.index(model_name) if model_name in self.models else -1
+            if k >= 0 and models[k].capabilities.has_direct_feedthrough and k not in order:
+                order.append(k)
+        return CompiledSystem(names, models, slices, out_names, out_units, src, a, b, order)
