@@ -37,7 +37,7 @@ class _Section(BaseModel):
 
 class ModelSection(_Section):
     type: str = Field(description="built-in type (see `cosimstep models`) or 'python'")
-    parameters: dict[str, float] = {}
+    parameters: dict[str, Any] = {}  # numbers for built-in types; any TOML value for 'python'
     start: dict[str, float] = {}
     solver: dict[str, Any] | None = None
     class_: str | None = Field(None, alias="class",
@@ -223,6 +223,11 @@ def _build_model(name: str, sec: ModelSection, header: HeaderSection,
     for k in bad:
         problems.append(Problem(f"{where}.parameters.{k}", f"'{sec.type}' has no parameter "
                                 f"'{k}'", f"its parameters: {', '.join(kind.parameters)}"))
+    for k, v in sec.parameters.items():
+        if k in kind.parameters and (isinstance(v, bool) or not isinstance(v, int | float)):
+            bad.append(k)
+            problems.append(Problem(f"{where}.parameters.{k}", f"must be a number, got {v!r}",
+                                    "write a number"))
     for k in sec.start:
         if k not in kind.start:
             problems.append(Problem(f"{where}.start.{k}", f"'{sec.type}' has no start value "

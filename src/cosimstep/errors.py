@@ -36,11 +36,13 @@ class ConfigurationError(ValueError):
 class SubModelError(RuntimeError):
     """A sub-model failed during a run (raised, returned NaN, or exceeded its time budget)."""
 
-    def __init__(self, model: str, t: float, reason: str) -> None:
+    def __init__(self, model: str, t: float, reason: str, h: float | None = None) -> None:
         self.model = model
         self.t = t
+        self.h = h
         self.reason = reason
-        super().__init__(f"sub-model '{model}' failed at t = {t:.9g}: {reason}")
+        where = f"t = {t:.9g}" + (f" (step to {t + h:.9g})" if h is not None else "")
+        super().__init__(f"sub-model '{model}' failed at {where}: {reason}")
 
 
 class StepSizeError(RuntimeError):

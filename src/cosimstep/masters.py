@@ -12,6 +12,7 @@ is what rejecting and re-running a step needs.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import queue
 import threading
@@ -128,10 +129,8 @@ class Master:
 
     def terminate(self) -> None:
         for model in self.system.models:
-            try:
+            with contextlib.suppress(Exception):
                 model.terminate()
-            except Exception:
-                pass
 
     def save(self) -> list[Any]:
         return [m.save_state() for m in self.system.models]
@@ -153,14 +152,14 @@ class Master:
         for k in self.sequence:
             self._step_model(k, t, h, coef)
             out = self.system.output_slices[k]
-            y_new[out] = self._guard(k, t + h, self.system.models[k].get_outputs)
+            y_new[out] = self._guard(k, t, self.system.models[k].get_outputs, h=h)
             if gauss_seidel:
                 # Later models see this model's fresh values: interpolate through t + h.
                 pts = [*times[-p:], t + h] if p > 0 else [t + h]
                 vals = np.vstack([history[-p:, out], y_new[out]]) if p > 0 else y_new[None, out]
                 coef[:, out] = taylor_coefficients(pts, vals, t, p)
         self._settle_feedthrough(t + h, y_new)
-        self._check_finite(range(len(self.system.models)), t + h, y_new)
+        self._check_finite(range(len(self.system.models)), t, y_new, h)
         return y_new
 
     def _step_model(self, k: int, t: float, h: float, coef: np.ndarray) -> None:
@@ -176,10 +175,10 @@ class Master:
             u = a * evaluate(coef[:, src], 0.5 * h) + b
         start = time.perf_counter()
         self.calls[k] += 1
-        self._guard(k, t, model.set_inputs, u)
+        self._guard(k, t, model.set_inputs, u, h=h)
         if q > 0:
-            self._guard(k, t, model.set_input_derivatives, a * coef[1:q + 1, src])
-        self._guard(k, t, model.do_step, t, h)
+            self._guard(k, t, model.set_input_derivatives, a * coef[1:q + 1, src], h=h)
+        self._guard(k, t, model.do_step, t, h, h=h)
         self.time_in_models[k] += time.perf_counter() - start
 
     def _settle_feedthrough(self, t: float, y: np.ndarray) -> None:
@@ -190,7 +189,8 @@ class Master:
             self._guard(k, t, system.models[k].set_inputs, u)
             y[system.output_slices[k]] = self._guard(k, t, system.models[k].get_outputs)
 
-    def _check_finite(self, models: Any, t: float, y: np.ndarray) -> None:
+    def _check_finite(self, models: Any, t: float, y: np.ndarray,
+                      h: float | None = None) -> None:
         if np.all(np.isfinite(y)):
             return
         for k in models:
@@ -199,9 +199,9 @@ class Master:
                 bad = [self.system.output_names[self.system.output_slices[k].start + i]
                        for i in np.flatnonzero(~np.isfinite(block))]
                 raise SubModelError(self.system.names[k], t,
-                                    f"returned non-finite output(s) {', '.join(bad)}")
+                                    f"returned non-finite output(s) {', '.join(bad)}", h)
 
-    def _guard(self, k: int, t: float, fn: Any, *args: Any) -> Any:
+    def _guard(self, k: int, t: float, fn: Any, *args: Any, h: float | None = None) -> Any:
         try:
             if self._call is not None:
                 return self._call(fn, *args)
@@ -210,7 +210,7 @@ class Master:
             raise
         except Exception as exc:
             raise SubModelError(self.system.names[k], t,
-                                f"{type(exc).__name__}: {exc}") from exc
+                                f"{type(exc).__name__}: {exc}", h) from exc
 
     @property
     def max_step(self) -> float:

@@ -1,0 +1,5 @@
+"""``python -m cosimstep`` runs the command line."""
+
+from cosimstep.cli import main
+
+main()

@@ -1,0 +1,121 @@
+"""The command line: run --json, validate, plot, demo, exit codes."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from click.testing import CliRunner
+
+from cosimstep.cli import main
+
+KEYS = {"status", "message", "t_end", "calls", "calls_total", "steps_accepted", "steps_rejected",
+        "h_min", "h_max", "wall_s", "store", "error"}
+
+
+def test_run_json_reports_error_against_reference(examples, tmp_path):
+    db = tmp_path / "slow.db"
+    res = CliRunner().invoke(main, ["run", str(examples / "double_pendulum_slow.toml"),
+                                    "--until", "2", "--step", "0.002", "--json", "--out", str(db)])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.output)
+    assert set(out) >= KEYS
+    assert out["status"] == "ok" and out["t_end"] == 2.0
+    assert out["calls"] == {"bar1": 1000, "bar2": 1000} and out["calls_total"] == 2000
+    assert out["h_min"] == pytest.approx(0.002) and out["h_max"] == pytest.approx(0.002)
+    assert 0 < out["error"]["max_abs"] < 1e-5 and out["error"]["rmse"] <= out["error"]["max_abs"]
+    assert db.exists()
+
+
+def test_run_options_override_file(examples, tmp_path):
+    res = CliRunner().invoke(main, [
+        "run", str(examples / "double_pendulum_slow.toml"), "--until", "1", "--master", "jacobi",
+        "--extrapolation", "0", "--controller", "random", "--seed", "3", "--json",
+        "--out", str(tmp_path / "r.db")])
+    out = json.loads(res.output)
+    assert res.exit_code == 0 and out["status"] == "ok"
+    assert 0.001 <= out["h_max"] <= 0.01 and out["steps_accepted"] < 1000
+
+
+BROKEN = """
+name = "broken"
+[parameters]
+l1 = 1.0
+[models.bar1]
+type = "double_pendulum.bar1"
+[models.bar2]
+type = "double_pendulum.barX"
+[[connections]]
+from = "bar1.theta"
+to = "bar1.omega2"
+[[connections]]
+from = "bar1.omega"
+to = "bar1.omega2"
+[controller]
+name = "fixed"
+step = "fast"
+"""
+
+
+def test_validate_reports_three_mistakes_at_once(tmp_path):
+    path = tmp_path / "broken.toml"
+    path.write_text(BROKEN)
+    res = CliRunner().invoke(main, ["validate", str(path)])
+    assert res.exit_code == 2
+    text = res.output
+    assert "models.bar2.type" in text and "unknown model type 'double_pendulum.barX'" in text
+    assert "connections[0]" in text and "unit mismatch" in text
+    assert "connections[1]" in text and "already has a source" in text
+    assert "controller.step" in text
+    assert str(path) in text
+
+
+def test_validate_accepts_every_example(examples):
+    for path in sorted(examples.glob("*.toml")):
+        res = CliRunner().invoke(main, ["validate", str(path)])
+        assert res.exit_code == 0, (path, res.output)
+
+
+def test_failed_run_exits_1(tmp_path):
+    (tmp_path / "models.py").write_text(
+        "import sys\n"
+        f"sys.path.insert(0, {str(__import__('pathlib').Path(__file__).parents[1])!r})\n"
+        "from helpers import Clock, Integrator\n")
+    (tmp_path / "s.toml").write_text(
+        'until = 1.0\n[models.clock]\ntype = "python"\nclass = "models.py:Clock"\n'
+        'parameters = { fail_at = 0.3 }\n[models.sink]\ntype = "python"\n'
+        'class = "models.py:Integrator"\nparameters = { unit = "s" }\n'
+        '[[connections]]\nfrom = "clock.time"\nto = "sink.u"\n'
+        '[controller]\nname = "fixed"\nstep = 0.1\n')
+    res = CliRunner().invoke(main, ["run", str(tmp_path / "s.toml"), "--json",
+                                    "--out", str(tmp_path / "s.db")])
+    out = json.loads(res.output)
+    assert res.exit_code == 1
+    assert out["status"] == "failed" and "'clock'" in out["message"]
+    assert out["steps_accepted"] == 3
+
+
+def test_plot_writes_figure(examples, tmp_path):
+    db = tmp_path / "t.db"
+    runner = CliRunner()
+    runner.invoke(main, ["run", str(examples / "double_pendulum_toggled.toml"), "--until", "3",
+                         "--step", "0.01", "--out", str(db)])
+    res = runner.invoke(main, ["plot", str(db), "-o", str(tmp_path / "fig.png")])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "fig.png").stat().st_size > 10_000
+
+
+def test_plot_missing_store_exits_2(tmp_path):
+    res = CliRunner().invoke(main, ["plot", str(tmp_path / "none.db"), "-o", "x.png"])
+    assert res.exit_code == 2 and "no results store" in res.output
+
+
+def test_console_script_demo(tmp_path):
+    """The installed entry point runs the embedded demo and writes results and a figure."""
+    proc = subprocess.run([sys.executable, "-m", "cosimstep", "demo", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "double_pendulum_slow.png").exists()
+    assert "status: ok" in proc.stdout

@@ -1,0 +1,99 @@
+"""Small Python sub-models used by several tests."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from cosimstep import Capabilities, Port, SubModel
+
+
+class Integrator(SubModel):
+    """x' = u (exact for a polynomial input of degree <= 2 it is told about); output x."""
+
+    def __init__(self, unit: str = "1", x0: float = 0.0, feedthrough: bool = False) -> None:
+        self.inputs = (Port("u", unit, 0.0),)
+        self.outputs = (Port("x", unit, x0),)
+        self.capabilities = Capabilities(can_save_state=True, max_input_derivative_order=2)
+        self.x0 = x0
+        self.x = x0
+        self.u = np.zeros(1)
+        self.du = np.zeros((2, 1))
+        self.seen: list[float] = []
+
+    def initialize(self, t0: float) -> None:
+        self.x = self.x0
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        self.u = np.array(values, float)
+        self.du[:] = 0.0
+        self.seen.append(float(values[0]))
+
+    def set_input_derivatives(self, derivatives: np.ndarray) -> None:
+        self.du[: derivatives.shape[0]] = derivatives
+
+    def do_step(self, t: float, h: float) -> None:
+        self.x += h * self.u[0] + h * h / 2 * self.du[0, 0] + h**3 / 6 * self.du[1, 0]
+
+    def get_outputs(self) -> np.ndarray:
+        return np.array([self.x])
+
+    def save_state(self) -> Any:
+        return self.x
+
+    def restore_state(self, token: Any) -> None:
+        self.x = token
+
+
+class Gain(SubModel):
+    """y = k u with direct feedthrough (no state)."""
+
+    def __init__(self, k: float = 1.0) -> None:
+        self.k = k
+        self.inputs = (Port("u", "1", 0.0),)
+        self.outputs = (Port("y", "1", 0.0),)
+        self.capabilities = Capabilities(can_save_state=True, feedthrough={"y": ("u",)})
+        self.u = 0.0
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        self.u = float(values[0])
+
+    def do_step(self, t: float, h: float) -> None:
+        pass
+
+    def get_outputs(self) -> np.ndarray:
+        return np.array([self.k * self.u])
+
+    def save_state(self) -> Any:
+        return self.u
+
+    def restore_state(self, token: Any) -> None:
+        self.u = token
+
+
+class Clock(SubModel):
+    """Outputs its own time; misbehaves from ``fail_at`` on in the way ``mode`` says."""
+
+    def __init__(self, fail_at: float = float("inf"), mode: str = "raise") -> None:
+        self.inputs = ()
+        self.outputs = (Port("time", "s", 0.0),)
+        self.fail_at, self.mode = fail_at, mode
+        self.t = 0.0
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        pass
+
+    def do_step(self, t: float, h: float) -> None:
+        if t + h > self.fail_at + 1e-12:
+            if self.mode == "raise":
+                raise RuntimeError("solver diverged")
+            if self.mode == "hang":
+                time.sleep(30)
+        self.t = t + h
+
+    def get_outputs(self) -> np.ndarray:
+        if self.mode == "nan" and self.t > self.fail_at + 1e-12:
+            return np.array([np.nan])
+        return np.array([self.t])

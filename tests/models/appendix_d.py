@@ -1,0 +1,72 @@
+"""Appendix D of the thesis: the solved equations of motion of the triple pendulum.
+
+Transcribed from the thesis text for alpha'' and gamma'' (a, b, gm: angles; ad, bd, gd: angular
+velocities; grav: gravity). Kept as strings and evaluated in the tests only.
+"""
+
+ALPHA_NUM = (
+    "(-m2*l2*cos(a-b)*m3*l3*gd**2*sin(b-gm)+2*m2*l2*cos(a-b)*m3*l1*ad**2*sin(a-b)"
+    "-m3**2*l2*cos(a-b)*cos(b-gm)*l1*bd**2*sin(b-gm)-m3**2*l2*cos(a-b)*cos(b"
+    "-gm)*l1*ad**2*sin(a-gm)+m3**2*l1*cos(a-gm)*cos(b-gm)*l3*gd**2*sin(b-gm)-m3*l1**2*cos(a"
+    "-gm)*cos(b-gm)*m2*ad**2*sin(a-b)-m2*l2*bd**2*sin(a-b)*m3*(cos(b-gm))**2*l1+m3*l1*cos(a"
+    "-gm)*bd**2*sin(b-gm)*m2*l2+m3*l1*cos(a-gm)*ad**2*sin(a-gm)*m2*l2+2*m3*l2**2*bd**2*sin(a"
+    "-b)*m2+m3*l2**2*gd**2*sin(a-gm)*m2+m3**2*l2**2*bd**2*sin(a-b)+m2**2*l2**2*bd**2*sin(a-b)"
+    "+m3**2*l2**2*gd**2*sin(a-gm)-m3**2*l2*bd**2*sin(a-b)*(cos(b-gm))**2*l1+m2**2*l2*cos(a"
+    "-b)*l1*ad**2*sin(a-b)-m3**2*l2*cos(a-b)*l3*gd**2*sin(b-gm)+m3**2*l2*cos(a"
+    "-b)*l1*ad**2*sin(a-b)-m3**2*l1**2*cos(a-gm)*cos(b-gm)*ad**2*sin(a-b)"
+    "-m3**2*l2*gd**2*sin(a-gm)*(cos(b-gm))**2*l1+m3**2*l1*cos(a-gm)*bd**2*sin(b-gm)*l2"
+    "+m3**2*l1*cos(a-gm)*ad**2*sin(a-gm)*l2-m2*l2*cos(a-b)*m3*cos(b-gm)*l1*bd**2*sin(b-gm)"
+    "-m2*l2*cos(a-b)*m3*cos(b-gm)*l1*ad**2*sin(a-gm)+m2*l2*cos(a-b)*m3*cos(b-gm)*grav*sin(gm)"
+    "+m3*l1*cos(a-gm)*cos(b-gm)*m2*grav*sin(b)+m2**2*grav*sin(a)*l2+m3**2*grav*sin(a)*l2"
+    "-2*m2*l2*cos(a-b)*m3*grav*sin(b)+m3**2*l2*cos(a-b)*cos(b-gm)*grav*sin(gm)+m3**2*l1*cos(a"
+    "-gm)*cos(b-gm)*grav*sin(b)-m1*grav*sin(a)*m3*(cos(b-gm))**2*l1-m2*grav*sin(a)*m3*(cos(b"
+    "-gm))**2*l1-m3*cos(a-gm)*grav*sin(gm)*m2*l2-m2**2*l2*cos(a-b)*grav*sin(b)-m3**2*l2*cos(a"
+    "-b)*grav*sin(b)+m1*grav*sin(a)*m2*l2+m1*grav*sin(a)*m3*l2+2*m2*grav*sin(a)*m3*l2"
+    "-m3**2*grav*sin(a)*(cos(b-gm))**2*l1-m3**2*cos(a-gm)*grav*sin(gm)*l2)"
+)
+ALPHA_DEN = (
+    "(l1*(m3*(cos(a-gm))**2*m2*l2+m3**2*(cos(a-gm))**2*l2-m1*m2*l2-m1*m3*l2+m1*m3*(cos(b"
+    "-gm))**2*l1-m2**2*l2-2*m2*m3*l2+m2*m3*(cos(b-gm))**2*l1-m3**2*l2+m3**2*(cos(b-gm))**2*l1"
+    "-m2*l2*cos(a-b)*m3*cos(b-gm)*cos(a-gm)+m2**2*l2*(cos(a-b))**2+2*m2*l2*(cos(a-b))**2*m3"
+    "-m3**2*l2*cos(a-b)*cos(b-gm)*cos(a-gm)+m3**2*l2*(cos(a-b))**2-m3*l1*cos(a-gm)*cos(b"
+    "-gm)*m2*cos(a-b)-m3**2*l1*cos(a-gm)*cos(b-gm)*cos(a-b)))"
+)
+GAMMA_NUM = (
+    "(2*m3*l1**2*cos(b-gm)*m2*ad**2*sin(a-b)-2*m3*l1*bd**2*sin(b-gm)*m2*l2"
+    "-2*m3*l1*ad**2*sin(a-gm)*m2*l2-m3**2*l1*cos(b-gm)*l3*gd**2*sin(b-gm)-2*cos(a"
+    "-gm)*m3*l2**2*bd**2*sin(a-b)*m2-cos(a-gm)*m3*l2**2*gd**2*sin(a-gm)*m2+l1**2*cos(b"
+    "-gm)*sin(a-b)*ad**2*m1*m3+l1**2*cos(b-gm)*sin(a-b)*ad**2*m1*m2-l1*bd**2*sin(b"
+    "-gm)*m1*m2*l2-l1*bd**2*sin(b-gm)*m1*m3*l2+l1*bd**2*sin(b-gm)*m2**2*l2*(cos(a-b))**2"
+    "+l1*bd**2*sin(b-gm)*m3**2*l2*(cos(a-b))**2-l1*ad**2*sin(a-gm)*m1*m2*l2-l1*ad**2*sin(a"
+    "-gm)*m1*m3*l2+l1*ad**2*sin(a-gm)*m2**2*l2*(cos(a-b))**2+l1*ad**2*sin(a"
+    "-gm)*m3**2*l2*(cos(a-b))**2+cos(a-gm)*m3**2*l2*cos(a-b)*l3*gd**2*sin(b-gm)-cos(a"
+    "-gm)*m3**2*l2*cos(a-b)*l1*ad**2*sin(a-b)-cos(a-gm)*m2**2*l2*cos(a-b)*l1*ad**2*sin(a-b)"
+    "-l1*cos(b-gm)*sin(b-gm)*gd**2*l3*m2*m3-l1*cos(b-gm)*sin(b-gm)*gd**2*l3*m1*m3+l1*cos(b"
+    "-gm)*cos(a-b)*sin(a-gm)*gd**2*l2*m3**2+l1*cos(b-gm)*cos(a-b)*sin(a-b)*bd**2*l2*m3**2"
+    "+l1*cos(b-gm)*cos(a-b)*sin(a-b)*bd**2*l2*m2**2+2*l1*bd**2*sin(b-gm)*m2*l2*(cos(a"
+    "-b))**2*m3+2*l1*ad**2*sin(a-gm)*m2*l2*(cos(a-b))**2*m3+m3**2*l1**2*cos(b-gm)*ad**2*sin(a"
+    "-b)-m3**2*l1*bd**2*sin(b-gm)*l2-m3**2*l1*ad**2*sin(a-gm)*l2-l1*bd**2*sin(b-gm)*m2**2*l2"
+    "-cos(a-gm)*m3**2*l2**2*gd**2*sin(a-gm)+l1**2*cos(b-gm)*sin(a-b)*ad**2*m2**2-cos(a"
+    "-gm)*m3**2*l2**2*bd**2*sin(a-b)-cos(a-gm)*m2**2*l2**2*bd**2*sin(a-b)-l1*ad**2*sin(a"
+    "-gm)*m2**2*l2-2*cos(a-gm)*m2*l2*cos(a-b)*m3*l1*ad**2*sin(a-b)+l1*cos(b-gm)*cos(a"
+    "-b)*sin(a-gm)*gd**2*l2*m2*m3+cos(a-gm)*m2*l2*cos(a-b)*m3*l3*gd**2*sin(b-gm)+2*l1*cos(b"
+    "-gm)*cos(a-b)*sin(a-b)*bd**2*l2*m2*m3+m3**2*grav*sin(gm)*l2+grav*sin(gm)*m2**2*l2"
+    "-m3**2*l1*cos(b-gm)*grav*sin(b)+2*m3*grav*sin(gm)*m2*l2+grav*sin(gm)*m1*m2*l2"
+    "+grav*sin(gm)*m1*m3*l2-grav*sin(gm)*m2**2*l2*(cos(a-b))**2-grav*sin(gm)*m3**2*l2*(cos(a"
+    "-b))**2-cos(a-gm)*m2**2*grav*sin(a)*l2-cos(a-gm)*m3**2*grav*sin(a)*l2-l1*cos(b"
+    "-gm)*sin(b)*m2**2*grav+2*l1*cos(b-gm)*cos(a-b)*sin(a)*m2*m3*grav+l1*cos(b-gm)*cos(a"
+    "-b)*sin(a)*m1*m3*grav+l1*cos(b-gm)*cos(a-b)*sin(a)*m1*m2*grav+2*cos(a-gm)*m2*l2*cos(a"
+    "-b)*m3*grav*sin(b)-2*m3*l1*cos(b-gm)*m2*grav*sin(b)+cos(a-gm)*m2**2*l2*cos(a"
+    "-b)*grav*sin(b)+cos(a-gm)*m3**2*l2*cos(a-b)*grav*sin(b)-cos(a-gm)*m1*grav*sin(a)*m2*l2"
+    "-cos(a-gm)*m1*grav*sin(a)*m3*l2-2*cos(a-gm)*m2*grav*sin(a)*m3*l2-l1*cos(b"
+    "-gm)*sin(b)*m1*m3*grav-l1*cos(b-gm)*sin(b)*m1*m2*grav+l1*cos(b-gm)*cos(a"
+    "-b)*sin(a)*m3**2*grav+l1*cos(b-gm)*cos(a-b)*sin(a)*m2**2*grav"
+    "-2*grav*sin(gm)*m2*l2*(cos(a-b))**2*m3)"
+)
+GAMMA_DEN = (
+    "(l3*(m3*(cos(a-gm))**2*m2*l2+m3**2*(cos(a-gm))**2*l2-m1*m2*l2-m1*m3*l2+m1*m3*(cos(b"
+    "-gm))**2*l1-m2**2*l2-2*m2*m3*l2+m2*m3*(cos(b-gm))**2*l1-m3**2*l2+m3**2*(cos(b-gm))**2*l1"
+    "-m2*l2*cos(a-b)*m3*cos(b-gm)*cos(a-gm)+m2**2*l2*(cos(a-b))**2+2*m2*l2*(cos(a-b))**2*m3"
+    "-m3**2*l2*cos(a-b)*cos(b-gm)*cos(a-gm)+m3**2*l2*(cos(a-b))**2-m3*l1*cos(a-gm)*cos(b"
+    "-gm)*m2*cos(a-b)-m3**2*l1*cos(a-gm)*cos(b-gm)*cos(a-b)))"
+)

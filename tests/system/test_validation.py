@@ -1,0 +1,71 @@
+"""System checks report every problem at once."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cosimstep import ConfigurationError, Fixed, MasterOptions, Port, System, simulate
+from cosimstep.extrapolation import taylor_coefficients
+from helpers import Gain, Integrator
+
+
+def test_all_problems_reported_together():
+    s = System()
+    s.add("a", Integrator(unit="rad"))
+    s.add("b", Integrator(unit="m"))
+    s.add("g1", Gain())
+    s.add("g2", Gain())
+    loose = Integrator()
+    loose.inputs = (Port("u", "1", None),)  # no start value
+    s.add("loose", loose)
+    s.connect("a.x", "b.u")               # unit mismatch rad -> m
+    s.connect("nowhere.x", "a.u")         # unknown model
+    s.connect("a.nope", "a.u")            # unknown port (and a second source into a.u)
+    s.connect("b.x", "a.u")               # first source of a.u, but m -> rad: unit mismatch
+    s.connect("a.x", "a.u")               # two sources into one input
+    s.connect("g1.y", "g2.u")             # algebraic loop g1 <-> g2 (both feedthrough)
+    s.connect("g2.y", "g1.u")
+    text = "\n".join(str(p) for p in s.problems())
+    assert "unit mismatch" in text
+    assert "unknown model 'nowhere'" in text
+    assert "has no output 'nope'" in text
+    assert "already has a source" in text
+    assert "'loose.u' is not connected and has no start value" in text
+    assert "algebraic loop" in text and "g1.y" in text
+    with pytest.raises(ConfigurationError) as info:
+        s.validate()
+    assert len(info.value.problems) == 7
+
+
+def test_unit_conversion_gain_and_offset():
+    """rad -> deg conversion, then gain and offset, reach the receiver."""
+    s = System()
+    src = Integrator(unit="rad", x0=1.0)
+    dst = Integrator(unit="deg")
+    s.add("src", src).add("dst", dst)
+    s.connect("src.x", "dst.u", gain=2.0, offset=1.0)
+    simulate(s, 0.1, Fixed(0.1), MasterOptions("jacobi", 0))
+    assert dst.seen[0] == pytest.approx(2.0 * np.degrees(1.0) + 1.0)
+
+
+def test_direct_feedthrough_outputs_are_settled_at_communication_points():
+    """A gain between two integrators: its output equals k * input at every stored point."""
+    s = System()
+    s.add("i1", Integrator(x0=1.0)).add("k", Gain(3.0)).add("i2", Integrator())
+    s.connect("i1.x", "k.u").connect("k.y", "i2.u")
+    r = simulate(s, 1.0, Fixed(0.1))
+    assert np.allclose(r["k.y"], 3.0 * r["i1.x"])
+    # i2 integrates a constant 3 exactly (x1 is constant: its input is unconnected with start 0)
+    assert r["i2.x"][-1] == pytest.approx(3.0)
+
+
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_extrapolation_is_exact_for_polynomials_of_its_order(order):
+    times = [0.0, 0.3, 0.7]
+    poly = np.array([0.5, -1.0, 2.0])[: order + 1]
+    values = np.array([[np.polynomial.polynomial.polyval(t, poly)] for t in times])
+    c = taylor_coefficients(times, values, 0.7, order)
+    derivs = [np.polynomial.polynomial.polyval(0.7, np.polynomial.polynomial.polyder(poly, k))
+              for k in range(order + 1)]
+    assert np.allclose(c[:, 0], derivs)
