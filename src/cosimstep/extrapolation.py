@@ -40,16 +40,24 @@ def taylor_coefficients(times: Sequence[float], values: np.ndarray, t0: float,
     values = np.asarray(values, dtype=float)
     n_points = min(len(times), order + 1)
     out = np.zeros((order + 1, values.shape[1]))
-    if n_points == 1:
-        out[0] = values[-1]
-        return out
-    ts = np.asarray(times[-n_points:], dtype=float)
-    scale = float(np.max(np.abs(ts - t0))) or 1.0
-    s = (ts - t0) / scale  # scaled abscissae keep the Vandermonde well conditioned
-    vander = np.vander(s, n_points, increasing=True)
-    coef = np.linalg.solve(vander, values[-n_points:])
-    for k in range(n_points):
-        out[k] = coef[k] * math.factorial(k) / scale**k
+    rows = values[-n_points:]
+    s = [float(ti) - t0 for ti in times[-n_points:]]
+    # Lagrange form: derivative k at t0 of the basis polynomial of point i is
+    # k! * coef_k(prod_{j != i} (x - s_j)) / prod_{j != i} (s_i - s_j). Pure-Python floats are
+    # much faster than a linear solve for the <= 3 points used here (this runs every step).
+    weights = [[0.0] * n_points for _ in range(n_points)]  # weights[k][i]
+    for i in range(n_points):
+        poly = [1.0]
+        denominator = 1.0
+        for j in range(n_points):
+            if j != i:
+                poly = [(poly[k - 1] if k > 0 else 0.0) - s[j] * (poly[k] if k < len(poly)
+                                                                    else 0.0)
+                        for k in range(len(poly) + 1)]
+                denominator *= s[i] - s[j]
+        for k in range(n_points):
+            weights[k][i] = poly[k] * math.factorial(k) / denominator
+    out[:n_points] = np.array(weights) @ rows
     return out
 
 
