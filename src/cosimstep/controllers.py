@@ -110,6 +110,9 @@ def make_controller(name: str, step: float | None = None, tol: float | None = No
     """
     if name not in CONTROLLERS:
         raise ValueError(f"unknown controller '{name}'; choose one of {', '.join(CONTROLLERS)}")
+    if name in ("fixed", "random") and tol is not None:
+        raise ValueError(f"controller '{name}' does not use a tolerance; drop --tol or choose "
+                         "an adaptive controller")
     if name == "fixed":
         if step is None:
             raise ValueError("controller 'fixed' needs a step (--step H or [controller] step)")

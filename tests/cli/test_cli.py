@@ -119,3 +119,9 @@ def test_console_script_demo(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "double_pendulum_slow.png").exists()
     assert "status: ok" in proc.stdout
+
+
+def test_tolerance_with_fixed_controller_is_a_configuration_error(examples):
+    res = CliRunner().invoke(main, ["run", str(examples / "double_pendulum_slow.toml"),
+                                    "--tol", "1e-4"])
+    assert res.exit_code == 2 and "does not use a tolerance" in res.output
