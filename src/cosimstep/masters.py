@@ -109,11 +109,16 @@ class Master:
         if options.order is None:
             self.sequence = list(range(n))
         else:
+            unknown = [m for m in options.order if m not in system.names]
+            if unknown or len(set(options.order)) != len(options.order):
+                raise ValueError(f"`order` {list(options.order)} must name each model at most "
+                                 f"once, from: {', '.join(system.names)}")
             self.sequence = [system.names.index(m) for m in options.order]
             self.sequence += [k for k in range(n) if k not in self.sequence]
         self._deriv_order = [min(options.extrapolation, m.capabilities.max_input_derivative_order)
                              for m in system.models]
         self._call = _TimedCaller(options.call_timeout) if options.call_timeout else None
+        self._dy0: np.ndarray | None = None
 
     # -- life cycle --------------------------------------------------------------------------
     def initialize(self, t0: float) -> np.ndarray:
@@ -121,11 +126,31 @@ class Master:
         for k, model in enumerate(self.system.models):
             self._guard(k, t0, model.initialize, t0)
         y = np.empty(self.system.n_outputs)
-        for k, model in enumerate(self.system.models):
-            y[self.system.output_slices[k]] = self._guard(k, t0, model.get_outputs)
+        for k in range(len(self.system.models)):
+            y[self.system.output_slices[k]] = self._outputs(k, t0, None)
         self._settle_feedthrough(t0, y)
         self._check_finite(range(len(self.system.models)), t0, y)
+        self._dy0 = None
+        if all(m.capabilities.provides_derivatives for m in self.system.models):
+            system = self.system
+            for k, m in enumerate(system.models):  # slopes at t0 need the inputs at t0
+                self._guard(k, t0, m.set_inputs, system.a[k] * y[system.src[k]] + system.b[k])
+            self._dy0 = np.concatenate([self._guard(k, t0, m.get_output_derivatives)
+                                        for k, m in enumerate(system.models)])
         return y
+
+    def _outputs(self, k: int, t: float, h: float | None) -> np.ndarray:
+        """Outputs of model ``k``, checked to be one float per declared output."""
+        values = self._guard(k, t, self.system.models[k].get_outputs, h=h)
+        try:
+            arr = np.asarray(values, dtype=float)
+        except (TypeError, ValueError):
+            arr = None
+        n = len(self.system.models[k].outputs)
+        if arr is None or arr.shape != (n,):
+            raise SubModelError(self.system.names[k], t, f"get_outputs returned {values!r}; "
+                                f"expected {n} float(s), one per declared output", h)
+        return arr
 
     def terminate(self) -> None:
         for model in self.system.models:
@@ -149,10 +174,17 @@ class Master:
         coef = taylor_coefficients(times, history, t, p)
         y_new = history[-1].copy()
         gauss_seidel = self.options.name == "gauss-seidel"
+        if len(times) == 1 and p > 0 and self._dy0 is not None:
+            coef[1] = self._dy0  # start-up: grey-box slopes instead of a first-order hold
         for k in self.sequence:
             self._step_model(k, t, h, coef)
             out = self.system.output_slices[k]
-            y_new[out] = self._guard(k, t, self.system.models[k].get_outputs, h=h)
+            model = self.system.models[k]
+            if gauss_seidel and model.capabilities.has_direct_feedthrough:
+                # its outputs must reflect inputs at t + h before later models interpolate them
+                src, a, b = self.system.src[k], self.system.a[k], self.system.b[k]
+                self._guard(k, t, model.set_inputs, a * evaluate(coef[:, src], h) + b, h=h)
+            y_new[out] = self._outputs(k, t, h)
             if gauss_seidel:
                 # Later models see this model's fresh values: interpolate through t + h.
                 pts = [*times[-p:], t + h] if p > 0 else [t + h]
@@ -187,7 +219,7 @@ class Master:
         for k in system.feedthrough_order:
             u = system.a[k] * y[system.src[k]] + system.b[k]
             self._guard(k, t, system.models[k].set_inputs, u)
-            y[system.output_slices[k]] = self._guard(k, t, system.models[k].get_outputs)
+            y[system.output_slices[k]] = self._outputs(k, t, None)
 
     def _check_finite(self, models: Any, t: float, y: np.ndarray,
                       h: float | None = None) -> None:

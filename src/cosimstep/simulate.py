@@ -9,6 +9,7 @@ computed so far — never into a lost run.
 from __future__ import annotations
 
 import bisect
+import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -173,8 +174,8 @@ def simulate(
     raise_on_failure:
         Raise the failure instead of returning a result with ``status = "failed"``.
     """
-    if not until > t0:
-        raise ValueError(f"`until` ({until}) must be after t0 ({t0})")
+    if not (math.isfinite(until) and until > t0):
+        raise ValueError(f"`until` ({until}) must be finite and after t0 ({t0})")
     master = master or MasterOptions()
     compiled = system.compile()
     if controller.needs_rollback:
@@ -232,6 +233,8 @@ def simulate(
         status, message, failure = "failed", str(exc), exc
     except StepSizeError as exc:
         status, message, failure = "failed", f"at t = {t:.9g}: {exc}", exc
+    except Exception as exc:
+        status, message, failure = "failed", f"at t = {t:.9g}: {type(exc).__name__}: {exc}", exc
     except KeyboardInterrupt as exc:
         status, message, failure = "interrupted", f"interrupted by the user at t = {t:.9g}", exc
     finally:
@@ -242,10 +245,10 @@ def simulate(
     times = np.array(ctx.times)
     values = np.array(ctx.rows) if ctx.rows else np.empty((0, compiled.n_outputs))
     err, ref_values = None, None
-    if reference is not None and len(times):
+    if reference is not None and len(times) > 1:
         names = [n for n in compiled.output_names if n in reference.mapping]
         cols = [compiled.output_names.index(n) for n in names]
-        reference.solve(t0, until)
+        reference.solve(t0, float(t))  # only as far as the run got
         ref_values = reference.values(times, names)
         err = error_report(times, values[:, cols], ref_values, names)
         if sink is not None:

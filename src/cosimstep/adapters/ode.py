@@ -168,6 +168,8 @@ class OdeSubModel(SubModel):
     # -- SubModel API ----------------------------------------------------------------------
     def initialize(self, t0: float) -> None:
         self._t = float(t0)
+        self._u = np.array([p.start if p.start is not None else 0.0 for p in self.inputs], float)
+        self._du = np.zeros((2, len(self.inputs)))
         self._x = np.array([s.start if s.start is not None else 0.0 for s in self._states], float)
 
     def set_inputs(self, values: np.ndarray) -> None:
