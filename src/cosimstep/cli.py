@@ -7,6 +7,7 @@ configuration or the command line is wrong (every problem listed).
 from __future__ import annotations
 
 import json
+import sqlite3
 import sys
 from importlib import resources
 from pathlib import Path
@@ -137,8 +138,8 @@ def plot(db: str, output: str, run_id: int | None) -> None:
 
     try:
         stored = read_run(db, run_id)
-    except (FileNotFoundError, LookupError) as exc:
-        click.echo(f"error: {exc}", err=True)
+    except (FileNotFoundError, LookupError, sqlite3.DatabaseError) as exc:
+        click.echo(f"error: {db}: {exc} (is it a cosimstep results store?)", err=True)
         sys.exit(EXIT_CONFIG)
     click.echo(f"wrote {plot_run(stored, output)}")
 

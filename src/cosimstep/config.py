@@ -13,6 +13,7 @@ the system-level checks (ports, units, loops) then run on everything that did pa
 from __future__ import annotations
 
 import importlib
+import math
 import importlib.util
 import sys
 import tomllib
@@ -32,7 +33,7 @@ from cosimstep.system import System
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
 
 
 class ModelSection(_Section):
@@ -76,7 +77,7 @@ class ReferenceSection(_Section):
 
 
 class HeaderSection(BaseModel):
-    model_config = ConfigDict(extra="ignore")
+    model_config = ConfigDict(extra="ignore", allow_inf_nan=False)
     name: str | None = None
     description: str = ""
     until: float = Field(10.0, gt=0)
@@ -120,12 +121,17 @@ def load_system(path: str | Path, until: float | None = None) -> SystemSpec:
         raise ConfigurationError([Problem(src, "file not found", "check the path")], src)
     try:
         raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigurationError([Problem(src, f"not valid TOML: {exc}", "fix the syntax")],
                                  src) from exc
     problems: list[Problem] = []
     loc = lambda key: f"{src}: {key}"  # noqa: E731 - tiny local formatter
 
+    for key, kind in (("models", dict), ("connections", list), ("parameter_changes", list)):
+        if key in raw and not isinstance(raw[key], kind):
+            problems.append(Problem(loc(key), f"must be a {'table' if kind is dict else 'list'}",
+                                    f"write [{key}.<name>]" if kind is dict else f"write [[{key}]]"))
+            raw = {k: v for k, v in raw.items() if k != key}
     for key in raw:
         if key not in KNOWN_TOP:
             problems.append(Problem(loc(key), "unknown top-level key",
@@ -224,10 +230,11 @@ def _build_model(name: str, sec: ModelSection, header: HeaderSection,
         problems.append(Problem(f"{where}.parameters.{k}", f"'{sec.type}' has no parameter "
                                 f"'{k}'", f"its parameters: {', '.join(kind.parameters)}"))
     for k, v in sec.parameters.items():
-        if k in kind.parameters and (isinstance(v, bool) or not isinstance(v, int | float)):
+        if k in kind.parameters and (isinstance(v, bool) or not isinstance(v, int | float)
+                                     or not math.isfinite(v)):
             bad.append(k)
-            problems.append(Problem(f"{where}.parameters.{k}", f"must be a number, got {v!r}",
-                                    "write a number"))
+            problems.append(Problem(f"{where}.parameters.{k}", f"must be a finite number, got "
+                                    f"{v!r}", "write a number"))
     for k in sec.start:
         if k not in kind.start:
             problems.append(Problem(f"{where}.start.{k}", f"'{sec.type}' has no start value "
