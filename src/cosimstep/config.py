@@ -13,8 +13,8 @@ the system-level checks (ports, units, loops) then run on everything that did pa
 from __future__ import annotations
 
 import importlib
-import math
 import importlib.util
+import math
 import sys
 import tomllib
 from dataclasses import dataclass, field
@@ -129,8 +129,8 @@ def load_system(path: str | Path, until: float | None = None) -> SystemSpec:
 
     for key, kind in (("models", dict), ("connections", list), ("parameter_changes", list)):
         if key in raw and not isinstance(raw[key], kind):
-            problems.append(Problem(loc(key), f"must be a {'table' if kind is dict else 'list'}",
-                                    f"write [{key}.<name>]" if kind is dict else f"write [[{key}]]"))
+            shape, fix = ("table", f"[{key}.<name>]") if kind is dict else ("list", f"[[{key}]]")
+            problems.append(Problem(loc(key), f"must be a {shape}", f"write {fix}"))
             raw = {k: v for k, v in raw.items() if k != key}
     for key in raw:
         if key not in KNOWN_TOP:
