@@ -17,7 +17,7 @@ import click
 
 from cosimstep.config import SystemSpec, load_system
 from cosimstep.controllers import CONTROLLERS, make_controller
-from cosimstep.errors import ConfigurationError
+from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.masters import MASTERS, MasterOptions
 from cosimstep.simulate import SimulationResult, simulate
 
@@ -87,17 +87,11 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
                                **settings)
     except (TypeError, ValueError) as exc:
         _config_exit(ConfigurationError(
-            [_problem("controller", str(exc), "see `cosimstep run --help`")], spec.source))
+            [Problem("controller", str(exc), "see `cosimstep run --help`")], spec.source))
     store = out or f"{spec.name}.db"
     return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=store,
                     name=spec.name, config={"source": spec.source, "system": spec.raw},
                     progress=None)
-
-
-def _problem(where: str, what: str, fix: str) -> Any:
-    from cosimstep.errors import Problem
-
-    return Problem(where, what, fix)
 
 
 def _report(result: SimulationResult, as_json: bool) -> None:
