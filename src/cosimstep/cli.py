@@ -52,22 +52,46 @@ def main() -> None:
 @click.option("--step", type=float, help="Fixed step (controller fixed) or initial step [s].")
 @click.option("--tol", type=float, help="Tolerance of an adaptive controller.")
 @click.option("--seed", type=int, help="Seed of the random controller.")
+@click.option("--opt", "options", multiple=True, metavar="KEY=VALUE",
+              help="Controller option, repeatable, e.g. --opt mode=reference --opt hmax=0.02.")
 @click.option("--out", type=click.Path(dir_okay=False), help="SQLite results file "
               "(default: <system name>.db in the current directory).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON summary object.")
 def run(system: str, until: float | None, master: str | None, extrapolation: int | None,
         controller: str | None, step: float | None, tol: float | None, seed: int | None,
-        out: str | None, as_json: bool) -> None:
-    """Co-simulate SYSTEM (a TOML system file)."""
+        options: tuple[str, ...], out: str | None, as_json: bool) -> None:
+    """Co-simulate SYSTEM (a TOML system file).
+
+    With --tol and no --controller the default adaptive controller runs.
+    """
     spec = _load(system, until)
-    result = _run(spec, master, extrapolation, controller, step, tol, seed, out)
+    result = _run(spec, master, extrapolation, controller, step, tol, seed, out,
+                  _options(options))
     _report(result, as_json)
     sys.exit(0 if result.success else EXIT_FAILED)
 
 
+def _options(pairs: tuple[str, ...]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    bad = []
+    for pair in pairs:
+        key, sep, text = pair.partition("=")
+        if not sep or not key.strip():
+            bad.append(Problem(f"--opt {pair}", "expected KEY=VALUE", "e.g. --opt hmax=0.02"))
+            continue
+        try:
+            value: Any = json.loads(text)
+        except json.JSONDecodeError:
+            value = text  # a bare word such as mode=reference
+        out[key.strip()] = value
+    if bad:
+        _config_exit(ConfigurationError(bad, "the command line"))
+    return out
+
+
 def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
          controller: str | None, step: float | None, tol: float | None, seed: int | None,
-         out: str | None) -> SimulationResult:
+         out: str | None, options: dict[str, Any] | None = None) -> SimulationResult:
     opts = spec.master
     opts = MasterOptions(master or opts.name,
                          opts.extrapolation if extrapolation is None else extrapolation,
@@ -81,7 +105,8 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
         settings["tol"] = tol
     if seed is not None:
         settings["seed"] = seed
-    name = settings.pop("name", "fixed")
+    settings.update(options or {})
+    name = settings.pop("name", None)
     try:
         ctrl = make_controller(name, settings.pop("step", None), settings.pop("tol", None),
                                **settings)
@@ -153,7 +178,7 @@ def demo(out: str) -> None:
         spec = _load(str(path))
     db = folder / "double_pendulum_slow.db"
     db.unlink(missing_ok=True)
-    result = _run(spec, None, None, None, None, None, None, str(db))
+    result = _run(spec, None, None, None, None, None, None, str(db), {})
     _report(result, False)
     click.echo(f"figure: {plot_run(read_run(db), folder / 'double_pendulum_slow.png')}")
     sys.exit(0 if result.success else EXIT_FAILED)

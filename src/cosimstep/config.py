@@ -66,7 +66,7 @@ class MasterSection(_Section):
 
 class ControllerSection(BaseModel):
     model_config = ConfigDict(extra="allow")
-    name: str = "fixed"
+    name: str | None = None
     step: float | None = None
     tol: float | None = None
 

@@ -119,6 +119,27 @@ class Master:
                              for m in system.models]
         self._call = _TimedCaller(options.call_timeout) if options.call_timeout else None
         self._dy0: np.ndarray | None = None
+        self.predicted = self._predicted_columns()
+        self.assumed = np.zeros(system.n_outputs)
+        self.last = np.zeros(system.n_outputs)
+
+    def _predicted_columns(self) -> np.ndarray:
+        """Outputs that some receiver uses *extrapolated* over a step (not yet computed).
+
+        Under Jacobi that is every consumed output; under Gauss–Seidel only outputs of models that
+        step after (or are) a receiver — the others are interpolated through their fresh values.
+        """
+        system = self.system
+        rank = {k: i for i, k in enumerate(self.sequence)}
+        owner = np.empty(system.n_outputs, dtype=int)
+        for k, sl in enumerate(system.output_slices):
+            owner[sl] = k
+        mask = np.zeros(system.n_outputs, dtype=bool)
+        for k in range(len(system.models)):
+            for j in np.asarray(system.src[k], dtype=int):
+                if self.options.name == "jacobi" or rank[owner[j]] >= rank[k]:
+                    mask[j] = True
+        return mask
 
     # -- life cycle --------------------------------------------------------------------------
     def initialize(self, t0: float) -> np.ndarray:
@@ -165,17 +186,29 @@ class Master:
             m.restore_state(token)
 
     # -- one communication step --------------------------------------------------------------
-    def step(self, t: float, h: float, times: Sequence[float], history: np.ndarray) -> np.ndarray:
+    def step(self, t: float, h: float, times: Sequence[float], history: np.ndarray, *,
+             order: int | None = None, end: np.ndarray | None = None) -> np.ndarray:
         """Advance every sub-model from ``t`` to ``t + h``; return the new exchanged values.
 
-        ``times``/``history`` are the stored points (the last row belongs to ``t``).
+        ``times``/``history`` are the stored points (the last row belongs to ``t``). ``order``
+        overrides the extrapolation order for this step. ``end`` (values at ``t + h`` from an
+        earlier attempt of the same step) turns extrapolation into interpolation: the corrector
+        of a predictor–corrector step. After the step, :attr:`assumed` holds the value at
+        ``t + h`` of the input polynomial each output was assumed to follow (see
+        :attr:`predicted` for which outputs were actually extrapolated).
         """
-        p = self.options.extrapolation
-        coef = taylor_coefficients(times, history, t, p)
+        p = self.options.extrapolation if order is None else order
+        if end is None:
+            coef = taylor_coefficients(times, history, t, p)
+        else:
+            pts = [*times[-p:], t + h] if p > 0 else [t + h]
+            vals = np.vstack([history[-p:], end]) if p > 0 else end[None, :]
+            coef = taylor_coefficients(pts, vals, t, p)
         y_new = history[-1].copy()
         gauss_seidel = self.options.name == "gauss-seidel"
-        if len(times) == 1 and p > 0 and self._dy0 is not None:
+        if end is None and len(times) == 1 and p > 0 and self._dy0 is not None:
             coef[1] = self._dy0  # start-up: grey-box slopes instead of a first-order hold
+        self.assumed = evaluate(coef, h)
         for k in self.sequence:
             self._step_model(k, t, h, coef)
             out = self.system.output_slices[k]
@@ -185,14 +218,23 @@ class Master:
                 src, a, b = self.system.src[k], self.system.a[k], self.system.b[k]
                 self._guard(k, t, model.set_inputs, a * evaluate(coef[:, src], h) + b, h=h)
             y_new[out] = self._outputs(k, t, h)
-            if gauss_seidel:
+            if gauss_seidel and end is None:
                 # Later models see this model's fresh values: interpolate through t + h.
                 pts = [*times[-p:], t + h] if p > 0 else [t + h]
                 vals = np.vstack([history[-p:, out], y_new[out]]) if p > 0 else y_new[None, out]
                 coef[:, out] = taylor_coefficients(pts, vals, t, p)
         self._settle_feedthrough(t + h, y_new)
         self._check_finite(range(len(self.system.models)), t, y_new, h)
+        self.last = y_new
         return y_new
+
+    def derivatives(self) -> np.ndarray | None:
+        """Grey-box output derivatives of every model now, or ``None`` if one cannot tell."""
+        if not all(m.capabilities.provides_derivatives for m in self.system.models):
+            return None
+        return np.concatenate([np.asarray(self._guard(k, math.nan, m.get_output_derivatives),
+                                          dtype=float)
+                               for k, m in enumerate(self.system.models)])
 
     def _step_model(self, k: int, t: float, h: float, coef: np.ndarray) -> None:
         system = self.system

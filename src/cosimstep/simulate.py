@@ -99,14 +99,29 @@ class _Context:
         self.times: list[float] = []
         self.rows: list[np.ndarray] = []
         self.history = np.empty((0, 0))
+        self.order = master.options.extrapolation
+        self.names = master.system.output_names
 
     def push(self, t: float, y: np.ndarray) -> None:
         self.times.append(t)
         self.rows.append(y)
         self.history = np.array(self.rows[-HISTORY_ROWS:])
 
-    def step(self, t: float, h: float) -> np.ndarray:
-        return self.master.step(t, h, self.times, self.history)
+    def step(self, t: float, h: float, *, order: int | None = None,
+             end: np.ndarray | None = None,
+             extra: tuple[tuple[float, np.ndarray], ...] = ()) -> np.ndarray:
+        times, history = self.times, self.history
+        if extra:
+            times = [*times, *(e[0] for e in extra)]
+            history = np.vstack([history, *(e[1] for e in extra)])[-HISTORY_ROWS:]
+        return self.master.step(t, h, times, history, order=order, end=end)
+
+    def defect(self) -> tuple[np.ndarray, np.ndarray]:
+        y = self.master.last
+        return y - self.master.assumed, self.master.predicted
+
+    def derivatives(self) -> np.ndarray | None:
+        return self.master.derivatives()
 
     def save(self) -> Any:
         return self.master.save()
@@ -220,6 +235,8 @@ def simulate(
             if attempt.accepted:
                 clock.add(h)
                 t = landing if abs(clock.value - landing) <= 1e-9 * h else clock.value
+                if t == landing and t < until:
+                    controller.event(t)
                 ctx.push(t, attempt.y)
                 steps.append(h)
                 if sink is not None:

@@ -1,0 +1,63 @@
+"""Step-size controllers: they decide the communication step ΔT (thesis 4.2).
+
+Selectable by name (:data:`CONTROLLERS`, :func:`make_controller`) from the API, the system file's
+``[controller]`` table and ``cosimstep run --controller``. ``--tol`` alone selects
+:data:`DEFAULT_ADAPTIVE`, the controller measured best in docs/benchmarks.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from cosimstep.controllers.base import Attempt, Controller, StepContext, StepPolicy
+from cosimstep.controllers.basic import Fixed, Random
+from cosimstep.controllers.coupling import Corrector, Defect, Doubling, Embedded
+from cosimstep.controllers.curvature import Curvature
+from cosimstep.controllers.helpers import AdaptiveTolerance, Switching, fft_hmax, fixed_step_from
+from cosimstep.controllers.rkf import RKF23, RKF45
+
+CONTROLLERS: dict[str, Callable[..., Controller]] = {
+    c.name: c for c in (Fixed, Random, Curvature, RKF23, RKF45, Defect, Corrector, Doubling,
+                        Embedded, Switching, AdaptiveTolerance)
+}
+
+DEFAULT_ADAPTIVE = "defect"
+"""What ``--tol`` without ``--controller`` runs (see docs/benchmarks.md for why)."""
+
+ADAPTIVE = frozenset(CONTROLLERS) - {"fixed", "random", "curvature"}
+
+
+def make_controller(name: str | None, step: float | None = None, tol: float | None = None,
+                    **options: Any) -> Controller:
+    """Build a controller by name from the CLI/config settings.
+
+    ``step`` is the fixed step (``fixed``) or the initial step; ``tol`` the tolerance of the
+    adaptive controllers. ``name=None`` picks ``fixed`` without ``tol`` and
+    :data:`DEFAULT_ADAPTIVE` with it.
+    """
+    if name is None:
+        name = DEFAULT_ADAPTIVE if tol is not None else "fixed"
+    if name not in CONTROLLERS:
+        raise ValueError(f"unknown controller '{name}'; choose one of {', '.join(CONTROLLERS)}")
+    if name not in ADAPTIVE and tol is not None:
+        raise ValueError(f"controller '{name}' does not use a tolerance; drop --tol or choose "
+                         f"an adaptive controller ({', '.join(sorted(ADAPTIVE))})")
+    if name == "fixed":
+        if step is None:
+            raise ValueError("controller 'fixed' needs a step (--step H or [controller] step)")
+        return Fixed(step, **options)
+    if name == "random":
+        return Random(**options)
+    kwargs = dict(options)
+    if tol is not None:
+        kwargs["tol"] = tol
+    if step is not None:
+        kwargs["h0"] = step
+    return CONTROLLERS[name](**kwargs)
+
+
+__all__ = ["ADAPTIVE", "CONTROLLERS", "DEFAULT_ADAPTIVE", "RKF23", "RKF45", "AdaptiveTolerance",
+           "Attempt", "Controller", "Corrector", "Curvature", "Defect", "Doubling", "Embedded",
+           "Fixed", "Random", "StepContext", "StepPolicy", "Switching", "fft_hmax",
+           "fixed_step_from", "make_controller"]

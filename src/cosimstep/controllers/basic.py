@@ -1,0 +1,46 @@
+"""Controllers without error control: a fixed step and a seeded random step (thesis 4.2.2)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cosimstep.controllers.base import Attempt, Controller, StepContext
+
+
+class Fixed(Controller):
+    """A constant communication step (thesis 4.2.2)."""
+
+    name = "fixed"
+
+    def __init__(self, step: float) -> None:
+        if not step > 0:
+            raise ValueError(f"`step` must be positive, got {step}")
+        self.step = float(step)
+
+    def initial_step(self, t0: float, t_end: float) -> float:
+        return self.step
+
+    def attempt(self, ctx: StepContext, t: float, h: float) -> Attempt:
+        return Attempt(ctx.step(t, h), True, self.step)
+
+
+class Random(Controller):
+    """A seeded random step, uniform in ``[hmin, hmax]`` (robustness test of thesis 4.2.2.2)."""
+
+    name = "random"
+
+    def __init__(self, hmin: float = 0.001, hmax: float = 0.01, seed: int = 0) -> None:
+        if not 0 < hmin <= hmax:
+            raise ValueError(f"need 0 < `hmin` <= `hmax`, got {hmin}, {hmax}")
+        self.hmin, self.hmax, self.seed = float(hmin), float(hmax), int(seed)
+        self._rng = np.random.default_rng(seed)
+
+    def _draw(self) -> float:
+        return float(self._rng.uniform(self.hmin, self.hmax))
+
+    def initial_step(self, t0: float, t_end: float) -> float:
+        self._rng = np.random.default_rng(self.seed)
+        return self._draw()
+
+    def attempt(self, ctx: StepContext, t: float, h: float) -> Attempt:
+        return Attempt(ctx.step(t, h), True, self._draw())
