@@ -16,7 +16,7 @@ from typing import Any
 import click
 
 from cosimstep.config import SystemSpec, load_system
-from cosimstep.controllers import CONTROLLERS, make_controller
+from cosimstep.controllers import ADAPTIVE, CONTROLLERS, DEFAULT_ADAPTIVE, make_controller
 from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.masters import MASTERS, MasterOptions
 from cosimstep.simulate import SimulationResult, simulate
@@ -99,6 +99,8 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
     settings: dict[str, Any] = dict(spec.controller)
     if controller is not None and controller != settings.get("name"):
         settings = {"name": controller}  # options in the file belong to another controller
+    elif controller is None and tol is not None and settings.get("name") not in ADAPTIVE:
+        settings = {"name": DEFAULT_ADAPTIVE}  # --tol alone: the default adaptive controller
     if step is not None:
         settings["step"] = step
     if tol is not None:

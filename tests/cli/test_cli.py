@@ -123,5 +123,25 @@ def test_console_script_demo(tmp_path):
 
 def test_tolerance_with_fixed_controller_is_a_configuration_error(examples):
     res = CliRunner().invoke(main, ["run", str(examples / "double_pendulum_slow.toml"),
-                                    "--tol", "1e-4"])
+                                    "--controller", "fixed", "--tol", "1e-4"])
     assert res.exit_code == 2 and "does not use a tolerance" in res.output
+
+
+def test_tol_alone_runs_the_default_adaptive_controller(examples, tmp_path):
+    res = CliRunner().invoke(main, ["run", str(examples / "double_pendulum_slow.toml"),
+                                    "--until", "2", "--tol", "1e-4", "--json",
+                                    "--out", str(tmp_path / "r.db")])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.output)
+    assert summary["status"] == "ok" and summary["h_min"] < summary["h_max"]
+    assert summary["error"]["max_abs"] < 1e-3
+
+
+def test_controller_options_from_the_command_line(examples, tmp_path):
+    base = ["run", str(examples / "double_pendulum_slow.toml"), "--until", "1",
+            "--controller", "rkf23", "--tol", "1e-4", "--json", "--out", str(tmp_path / "r.db")]
+    res = CliRunner().invoke(main, [*base, "--opt", "mode=reference", "--opt", "hmax=0.01"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)["h_max"] <= 0.01
+    bad = CliRunner().invoke(main, [*base, "--opt", "mode=everything"])
+    assert bad.exit_code == 2 and "`mode` must be one of" in bad.output

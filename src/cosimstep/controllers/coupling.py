@@ -107,7 +107,8 @@ class Defect(_PolicyController):
                 gain = float(np.max(local / scale)) / seen
                 self._gain = gain if self._gain is None else max(gain, math.sqrt(gain * self._gain))
             self._since = 0
-            attempt = self._decide(ctx, token, t, h, y_corrected, local, y_corrected, q + 1, ctx.names)
+            attempt = self._decide(ctx, token, t, h, y_corrected, local, y_corrected, q + 1,
+                                   ctx.names)
         else:
             error = (self._gain or 1.0) * source_error
             attempt = self._decide(ctx, token, t, h, y, error, y[cols], q + 1, names)
@@ -127,7 +128,8 @@ class Corrector(_PolicyController):
         y = ctx.step(t, h)
         ctx.restore(token)
         y_corrected = ctx.step(t, h, end=y)
-        return self._decide(ctx, token, t, h, y_corrected, y_corrected - y, y_corrected, q + 1, ctx.names)
+        return self._decide(ctx, token, t, h, y_corrected, y_corrected - y, y_corrected, q + 1,
+                            ctx.names)
 
 
 class Doubling(_PolicyController):

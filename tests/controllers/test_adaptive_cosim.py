@@ -1,0 +1,93 @@
+"""Adaptive control of co-simulations of the split double pendulum (thesis 4.2.4–4.2.5)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cosimstep import load_system, simulate
+from cosimstep.controllers import Attempt, Controller, make_controller
+from cosimstep.masters import Master, MasterOptions
+
+
+class Replay(Controller):
+    """Fixed sequence of steps (to check that rollback leaves no trace)."""
+
+    name = "replay"
+
+    def __init__(self, steps: np.ndarray) -> None:
+        self._steps = list(steps)
+
+    def initial_step(self, t0: float, t_end: float) -> float:
+        return self._steps[0]
+
+    def attempt(self, ctx, t, h):
+        self._steps.pop(0)
+        return Attempt(ctx.step(t, h), True, self._steps[0] if self._steps else h)
+
+
+@pytest.fixture(scope="module")
+def toggled(examples):
+    return load_system(examples / "double_pendulum_toggled.toml")
+
+
+def run(spec, controller, until=None):
+    return simulate(spec.system, until or spec.until, controller, spec.master,
+                    reference=spec.reference)
+
+
+def test_rejected_steps_are_rerun_from_the_saved_state(toggled) -> None:
+    adaptive = run(toggled, make_controller("doubling", None, 1e-6), until=3.0)
+    assert adaptive.steps_rejected > 0
+    # three calls per sub-model per attempt, rejected attempts included
+    assert adaptive.calls_total == 3 * 2 * (adaptive.steps_accepted + adaptive.steps_rejected)
+    rkf = run(toggled, make_controller("rkf23", None, 1e-6, hmax=0.02), until=3.0)
+    assert rkf.steps_rejected > 0
+    assert rkf.calls_total == 2 * 2 * (rkf.steps_accepted + rkf.steps_rejected)
+    # replaying rkf23's accepted steps without any rollback gives the very same trajectory
+    replay = run(toggled, Replay(rkf.step_sizes), until=3.0)
+    assert replay.times == pytest.approx(rkf.times, abs=1e-12)
+    assert np.max(np.abs(replay.values - rkf.values)) < 1e-12
+
+
+def test_default_controller_tracks_the_tolerance(toggled) -> None:
+    errors = {}
+    for tol in (1e-3, 1e-5):
+        result = run(toggled, make_controller(None, None, tol))
+        assert result.success
+        errors[tol] = result.error.max_abs
+        assert 0.1 <= result.error.max_abs / tol <= 10.0, (tol, result.error.max_abs)
+    assert errors[1e-3] / errors[1e-5] > 20  # proportional, not saturating
+
+
+def test_thesis_rkf23_does_not_track_the_tolerance(toggled) -> None:
+    result = run(toggled, make_controller("rkf23", None, 1e-6, hmax=0.02))
+    assert result.success
+    assert result.error.max_abs > 100 * 1e-6  # reports tol 1e-6, delivers ~4e-4
+
+
+def test_step_below_hmin_fails_cleanly_and_keeps_results(toggled) -> None:
+    # the parameter jump at t = 1 s needs steps below 5e-5 s at this tolerance
+    result = run(toggled, make_controller("defect", None, 1e-7, hmin=5e-5), until=2.5)
+    assert result.status == "failed"
+    assert "fell below hmin = 5e-05 s" in result.message and "from t = 1 " in result.message
+    assert result.t_end == 1.0 and result.times[-1] == 1.0 and len(result.times) > 100
+    assert np.max(np.abs(result.values - result.reference)) < 1e-5  # kept, and accurate
+
+
+def test_reference_mode_watches_one_variable(toggled) -> None:
+    one = run(toggled, make_controller("rkf23", None, 1e-5, hmax=0.02, mode="reference",
+                                       variable="bar1.theta"), until=2.0)
+    every = run(toggled, make_controller("rkf23", None, 1e-5, hmax=0.02), until=2.0)
+    assert one.success and every.success
+    assert one.calls_total < every.calls_total  # minimum over all variables is stricter
+
+
+def test_extrapolated_outputs_per_master(toggled) -> None:
+    compiled = toggled.system.compile()
+    gs = Master(compiled, MasterOptions("gauss-seidel"))
+    jacobi = Master(compiled, MasterOptions("jacobi"))
+    names = np.array(compiled.output_names)
+    # bar1 steps first: only bar2's outputs are extrapolated under Gauss-Seidel
+    assert set(names[gs.predicted]) == {"bar2.theta", "bar2.omega"}
+    assert jacobi.predicted.all()
