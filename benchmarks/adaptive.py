@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from _doc import write_section
 from cosimstep import Fixed, load_system, simulate
 from cosimstep.controllers import DEFAULT_ADAPTIVE, fixed_step_from, make_controller
 from cosimstep.controllers.helpers import fft_hmax
@@ -164,18 +165,8 @@ def main() -> None:
     for t in tables:
         out += [*t, ""]
     out += [*extra, "", *alone(), "", MARK_END]
-    write_section(ROOT / "docs" / "benchmarks.md", "\n".join(out))
+    write_section(ROOT / "docs" / "benchmarks.md", "\n".join(out), MARK_BEGIN, MARK_END)
 
-
-def write_section(path: Path, section: str) -> None:
-    text = path.read_text()
-    if MARK_BEGIN in text:
-        head, rest = text.split(MARK_BEGIN, 1)
-        text = head + section + rest.split(MARK_END, 1)[1]
-    else:
-        text = text.rstrip() + "\n\n" + section + "\n"
-    path.write_text(text)
-    print(section)
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from _doc import write_section
 from cosimstep import Fixed, MasterOptions, Random, load_system, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,20 +76,8 @@ def main() -> None:
         out.append(f"| {h:g} | gauss-seidel, order 2 | {r.calls_total} | {r.error.max_abs:.2e} "
                    f"| {r.error.rmse:.2e} |")
     out += ["", MARK_END]
-    write_section(ROOT / "docs" / "benchmarks.md", "\n".join(out))
+    write_section(ROOT / "docs" / "benchmarks.md", "\n".join(out), MARK_BEGIN, MARK_END)
 
-
-def write_section(path: Path, section: str) -> None:
-    """Replace this script's section in the generated document (other sections are kept)."""
-    text = path.read_text() if path.exists() else "# cosimstep benchmarks\n\nGenerated tables; "\
-        "see each section's script.\n"
-    if MARK_BEGIN in text:
-        head, rest = text.split(MARK_BEGIN, 1)
-        text = head + section + rest.split(MARK_END, 1)[1]
-    else:
-        text = text.rstrip() + "\n\n" + section + "\n"
-    path.write_text(text)
-    print(section)
 
 
 if __name__ == "__main__":
