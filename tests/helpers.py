@@ -97,3 +97,70 @@ class Clock(SubModel):
         if self.mode == "nan" and self.t > self.fail_at + 1e-12:
             return np.array([np.nan])
         return np.array([self.t])
+
+
+class Jump(SubModel):
+    """Outputs 0 before ``at`` and 1 from then on, *without* declaring a time event."""
+
+    def __init__(self, at: float = 1.0) -> None:
+        self.inputs = ()
+        self.outputs = (Port("y", "1", 0.0),)
+        self.capabilities = Capabilities(can_save_state=True)
+        self.at, self.t = at, 0.0
+
+    def initialize(self, t0: float) -> None:
+        self.t = t0
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        pass
+
+    def do_step(self, t: float, h: float) -> None:
+        self.t = t + h
+
+    def get_outputs(self) -> np.ndarray:
+        return np.array([1.0 if self.t >= self.at else 0.0])
+
+    def save_state(self) -> Any:
+        return self.t
+
+    def restore_state(self, token: Any) -> None:
+        self.t = token
+
+
+class Follower(SubModel):
+    """A very fast first-order lag (τ → 0): its state is its input at the end of each step.
+
+    Unlike a feedthrough gain its output is a *state*, so a wrong input trajectory over a step
+    shows in the output by its full size however short the step — the case no step size cures.
+    """
+
+    def __init__(self) -> None:
+        self.inputs = (Port("u", "1", 0.0),)
+        self.outputs = (Port("x", "1", 0.0),)
+        self.capabilities = Capabilities(can_save_state=True, max_input_derivative_order=3)
+        self.x = 0.0
+        self.u = np.zeros(1)
+        self.du = np.zeros((3, 1))
+
+    def initialize(self, t0: float) -> None:
+        self.x = 0.0
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        self.u = np.array(values, float)
+        self.du[:] = 0.0
+
+    def set_input_derivatives(self, derivatives: np.ndarray) -> None:
+        self.du[: derivatives.shape[0]] = derivatives
+
+    def do_step(self, t: float, h: float) -> None:
+        self.x = float(self.u[0] + h * self.du[0, 0] + h**2 / 2 * self.du[1, 0]
+                       + h**3 / 6 * self.du[2, 0])
+
+    def get_outputs(self) -> np.ndarray:
+        return np.array([self.x])
+
+    def save_state(self) -> Any:
+        return self.x
+
+    def restore_state(self, token: Any) -> None:
+        self.x = token

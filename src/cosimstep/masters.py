@@ -115,11 +115,13 @@ class Master:
                                  f"once, from: {', '.join(system.names)}")
             self.sequence = [system.names.index(m) for m in options.order]
             self.sequence += [k for k in range(n) if k not in self.sequence]
-        self._deriv_order = [min(options.extrapolation, m.capabilities.max_input_derivative_order)
-                             for m in system.models]
+        self._deriv_order = [m.capabilities.max_input_derivative_order for m in system.models]
         self._call = _TimedCaller(options.call_timeout) if options.call_timeout else None
         self._dy0: np.ndarray | None = None
         self.predicted = self._predicted_columns()
+        self.consumed = np.zeros(system.n_outputs, dtype=bool)  # outputs some model reads
+        for src in system.src:
+            self.consumed[np.asarray(src, dtype=int)] = True
         self.assumed = np.zeros(system.n_outputs)
         self.last = np.zeros(system.n_outputs)
 
@@ -218,7 +220,7 @@ class Master:
                 src, a, b = self.system.src[k], self.system.a[k], self.system.b[k]
                 self._guard(k, t, model.set_inputs, a * evaluate(coef[:, src], h) + b, h=h)
             y_new[out] = self._outputs(k, t, h)
-            if gauss_seidel and end is None:
+            if gauss_seidel:
                 # Later models see this model's fresh values: interpolate through t + h.
                 pts = [*times[-p:], t + h] if p > 0 else [t + h]
                 vals = np.vstack([history[-p:, out], y_new[out]]) if p > 0 else y_new[None, out]
@@ -227,6 +229,10 @@ class Master:
         self._check_finite(range(len(self.system.models)), t, y_new, h)
         self.last = y_new
         return y_new
+
+    def restart(self) -> None:
+        """After a time event: grey-box slopes (if any) for the first step of the new segment."""
+        self._dy0 = self.derivatives()
 
     def derivatives(self) -> np.ndarray | None:
         """Grey-box output derivatives of every model now, or ``None`` if one cannot tell."""
@@ -240,7 +246,7 @@ class Master:
         system = self.system
         model = system.models[k]
         src, a, b = system.src[k], system.a[k], system.b[k]
-        q = self._deriv_order[k]
+        q = min(self._deriv_order[k], coef.shape[0] - 1)
         if q > 0 or coef.shape[0] == 1:
             u = a * coef[0, src] + b
         else:

@@ -96,16 +96,29 @@ class _Context:
 
     def __init__(self, master: Master) -> None:
         self.master = master
-        self.times: list[float] = []
+        self.all_times: list[float] = []
         self.rows: list[np.ndarray] = []
+        self.times: list[float] = []  # the points extrapolation may use (rows of ``history``)
         self.history = np.empty((0, 0))
         self.order = master.options.extrapolation
         self.names = master.system.output_names
+        self.predicted = master.predicted
+        self.consumed = master.consumed
+        self._segment = 0  # index of the first point after the last time event
 
     def push(self, t: float, y: np.ndarray) -> None:
-        self.times.append(t)
+        self.all_times.append(t)
         self.rows.append(y)
-        self.history = np.array(self.rows[-HISTORY_ROWS:])
+        first = max(self._segment, len(self.rows) - HISTORY_ROWS)
+        self.history = np.array(self.rows[first:])
+        self.times = self.all_times[first:]
+
+    def restart(self) -> None:
+        """A time event at the last point: extrapolate only from points at or after it."""
+        self._segment = len(self.rows) - 1
+        self.history = np.array(self.rows[self._segment:])
+        self.times = self.all_times[self._segment:]
+        self.master.restart()
 
     def step(self, t: float, h: float, *, order: int | None = None,
              end: np.ndarray | None = None,
@@ -238,6 +251,8 @@ def simulate(
                 if t == landing and t < until:
                     controller.event(t)
                 ctx.push(t, attempt.y)
+                if t == landing and t < until:
+                    ctx.restart()
                 steps.append(h)
                 if sink is not None:
                     sink.add_point(len(steps), t, attempt.y)
@@ -259,7 +274,7 @@ def simulate(
             bar.close()
         runner.terminate()
     wall = time.perf_counter() - wall0
-    times = np.array(ctx.times)
+    times = np.array(ctx.all_times)
     values = np.array(ctx.rows) if ctx.rows else np.empty((0, compiled.n_outputs))
     err, ref_values = None, None
     if reference is not None and len(times) > 1:

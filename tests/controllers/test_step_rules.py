@@ -69,7 +69,7 @@ def test_fixed_step_from_a_sample_run() -> None:
 
 
 def test_make_controller_defaults_and_errors() -> None:
-    assert make_controller(None, None, 1e-4).name == "defect"
+    assert make_controller(None, None, 1e-4).name == "pc"
     assert make_controller(None, 0.01).name == "fixed"
     with pytest.raises(ValueError, match="does not use a tolerance"):
         make_controller("fixed", 0.01, 1e-4)

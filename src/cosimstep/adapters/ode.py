@@ -28,6 +28,19 @@ Rhs = Callable[[float, np.ndarray, np.ndarray, Mapping[str, float]], np.ndarray]
 """``rhs(t, x, u, p) -> dx/dt`` with states ``x``, inputs ``u`` and parameters ``p``."""
 
 
+INPUT_ORDER = 3  # input derivatives an ODE sub-model follows (the corrector's cubic needs 3)
+
+
+def _taylor(value: np.ndarray, derivatives: np.ndarray, dt: float) -> np.ndarray:
+    """``value + Σ_k derivatives[k-1]·dt^k/k!`` — an input polynomial evaluated ``dt`` ahead."""
+    out = np.array(value, dtype=float)
+    term = 1.0
+    for k, d in enumerate(derivatives, start=1):
+        term *= dt / k
+        out = out + term * d
+    return out
+
+
 class ParameterSchedule:
     """Parameter values that change at given times (the thesis's "toggled" dynamics).
 
@@ -157,11 +170,11 @@ class OdeSubModel(SubModel):
         self.parameters = parameters
         self.solver: InternalSolver = solver or RK4()
         self.capabilities = Capabilities(
-            can_save_state=True, provides_derivatives=True, max_input_derivative_order=2
+            can_save_state=True, provides_derivatives=True, max_input_derivative_order=INPUT_ORDER
         )
         n_in = len(self.inputs)
         self._u = np.array([p.start if p.start is not None else 0.0 for p in self.inputs], float)
-        self._du = np.zeros((2, n_in))
+        self._du = np.zeros((INPUT_ORDER, n_in))
         self._x = np.array([s.start if s.start is not None else 0.0 for s in self._states], float)
         self._t = 0.0
 
@@ -169,7 +182,7 @@ class OdeSubModel(SubModel):
     def initialize(self, t0: float) -> None:
         self._t = float(t0)
         self._u = np.array([p.start if p.start is not None else 0.0 for p in self.inputs], float)
-        self._du = np.zeros((2, len(self.inputs)))
+        self._du = np.zeros((INPUT_ORDER, len(self.inputs)))
         self._x = np.array([s.start if s.start is not None else 0.0 for s in self._states], float)
 
     def set_inputs(self, values: np.ndarray) -> None:
@@ -179,7 +192,7 @@ class OdeSubModel(SubModel):
     def set_input_derivatives(self, derivatives: np.ndarray) -> None:
         d = np.asarray(derivatives, dtype=float)
         self._du[:] = 0.0
-        self._du[: d.shape[0]] = d[:2]
+        self._du[: d.shape[0]] = d[:INPUT_ORDER]
 
     def do_step(self, t: float, h: float) -> None:
         t_start, u0, du = self._t, self._u, self._du
@@ -188,8 +201,7 @@ class OdeSubModel(SubModel):
         def inputs_at(s: float) -> np.ndarray:
             if not has_slope:
                 return u0
-            dt = s - t_start
-            return u0 + dt * du[0] + (0.5 * dt * dt) * du[1]
+            return _taylor(u0, du, s - t_start)
 
         x = self._x
         rhs = self._rhs
@@ -202,8 +214,8 @@ class OdeSubModel(SubModel):
         # The input polynomial is re-expanded around the new time so outputs and derivatives
         # read now see the inputs valid now.
         dt = self._t - t_start
-        self._u = u0 + dt * du[0] + 0.5 * dt * dt * du[1]
-        self._du = np.array([du[0] + dt * du[1], du[1]])
+        self._u = _taylor(u0, du, dt)
+        self._du = np.array([_taylor(du[j], du[j + 1:], dt) for j in range(len(du))])
 
     def get_outputs(self) -> np.ndarray:
         return self._x[self._out_idx]

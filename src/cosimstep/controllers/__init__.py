@@ -12,17 +12,17 @@ from typing import Any
 
 from cosimstep.controllers.base import Attempt, Controller, StepContext, StepPolicy
 from cosimstep.controllers.basic import Fixed, Random
-from cosimstep.controllers.coupling import Corrector, Defect, Doubling, Embedded
+from cosimstep.controllers.coupling import Corrector, Defect, Doubling, Embedded, PredictorCorrector
 from cosimstep.controllers.curvature import Curvature
 from cosimstep.controllers.helpers import AdaptiveTolerance, Switching, fft_hmax, fixed_step_from
 from cosimstep.controllers.rkf import RKF23, RKF45
 
 CONTROLLERS: dict[str, Callable[..., Controller]] = {
-    c.name: c for c in (Fixed, Random, Curvature, RKF23, RKF45, Defect, Corrector, Doubling,
-                        Embedded, Switching, AdaptiveTolerance)
+    c.name: c for c in (Fixed, Random, Curvature, RKF23, RKF45, Defect, PredictorCorrector,
+                        Corrector, Doubling, Embedded, Switching, AdaptiveTolerance)
 }
 
-DEFAULT_ADAPTIVE = "defect"
+DEFAULT_ADAPTIVE = "pc"
 """What ``--tol`` without ``--controller`` runs (see docs/benchmarks.md for why)."""
 
 ADAPTIVE = frozenset(CONTROLLERS) - {"fixed", "random", "curvature"}
@@ -59,5 +59,5 @@ def make_controller(name: str | None, step: float | None = None, tol: float | No
 
 __all__ = ["ADAPTIVE", "CONTROLLERS", "DEFAULT_ADAPTIVE", "RKF23", "RKF45", "AdaptiveTolerance",
            "Attempt", "Controller", "Corrector", "Curvature", "Defect", "Doubling", "Embedded",
-           "Fixed", "Random", "StepContext", "StepPolicy", "Switching", "fft_hmax",
-           "fixed_step_from", "make_controller"]
+           "Fixed", "PredictorCorrector", "Random", "StepContext", "StepPolicy", "Switching",
+           "fft_hmax", "fixed_step_from", "make_controller"]

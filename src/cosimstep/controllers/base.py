@@ -40,6 +40,8 @@ class StepContext(Protocol):
     history: np.ndarray
     order: int  # the master's input extrapolation order
     names: list[str]  # exchanged outputs, the columns of ``history``
+    predicted: np.ndarray  # outputs some receiver uses extrapolated (not yet computed)
+    consumed: np.ndarray  # outputs some sub-model reads as an input
 
     def step(self, t: float, h: float, *, order: int | None = None,
              end: np.ndarray | None = None,

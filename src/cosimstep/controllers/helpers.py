@@ -76,7 +76,7 @@ class Switching(Controller):
     """A fixed step while the dynamics are smooth, an adaptive controller otherwise (5.1).
 
     Starts adaptive. After ``calm`` accepted adaptive steps in a row with error ratio below 0.5 it
-    switches to a fixed step (``step``, or the smallest of those calm steps). On the fixed step it
+    switches to a fixed step (``step``, or the adaptive controller's current step). On the fixed step it
     watches the cost-free input defect (fig. 87) against the same tolerance; a step outside the
     band is rejected and the adaptive controller takes over from it.
     """
@@ -84,7 +84,7 @@ class Switching(Controller):
     name = "switching"
     needs_rollback = True
 
-    def __init__(self, tol: float = 1e-4, adaptive: str = "rkf23", step: float | None = None,
+    def __init__(self, tol: float = 1e-4, adaptive: str = "pc", step: float | None = None,
                  calm: int = 20, h0: float | None = None, **options: Any) -> None:
         from cosimstep.controllers import make_controller
 
@@ -109,7 +109,10 @@ class Switching(Controller):
             if a.accepted and a.error is not None and a.error < 0.5:
                 self._recent.append(h)
                 if len(self._recent) >= self.calm:
-                    self._fixed = self.step or min(self._recent)
+                    # the step the adaptive controller has settled on, not the smallest calm
+                    # one: the first calm steps are often the start-up ramp (measured: the
+                    # smallest made the fixed phase 30× too expensive on the toggled pendulum)
+                    self._fixed = self.step or min(h, a.h_next)
                     self.switches += 1
                     return Attempt(a.y, True, self._fixed, a.error)
             elif a.accepted:
@@ -140,7 +143,7 @@ class AdaptiveTolerance(Controller):
     name = "adaptive-tol"
     needs_rollback = True
 
-    def __init__(self, tol: float = 1e-4, inner: str = "defect", relax: float = 10.0,
+    def __init__(self, tol: float = 1e-4, inner: str = "pc", relax: float = 10.0,
                  h0: float | None = None, **options: Any) -> None:
         from cosimstep.controllers import make_controller
 
