@@ -561,6 +561,7 @@ class _BezierCurve(Curve):
         span = knots[-1] - knots[0]
         # Uniform spacing: t(s) is exactly linear, no root finding needed.
         self._linear = bool(np.all(np.abs(self._ct[2:]) <= 1e-13 * span))
+        self._last: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None
 
     def _parameter(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Segment index and parameter ``s`` with ``t(s) = t``."""
@@ -592,7 +593,12 @@ class _BezierCurve(Curve):
         return seg, s
 
     def _evaluate(self, t: np.ndarray, nu: int) -> np.ndarray:
-        seg, s = self._parameter(t)
+        # The master reads value and slope at the same times: solve t(s) = t once for both.
+        if self._last is not None and np.array_equal(self._last[0], t):
+            seg, s = self._last[1]
+        else:
+            seg, s = self._parameter(t)
+            self._last = (t.copy(), (seg, s))
         a, b, c, d = (ci[seg] for ci in self._cy)
         x = s[:, None]
         if nu == 0:
