@@ -27,7 +27,7 @@ from cosimstep.errors import SubModelError
 from cosimstep.extrapolation import evaluate, taylor_coefficients
 from cosimstep.system import CompiledSystem
 
-MASTERS = ("jacobi", "gauss-seidel")
+MASTERS = ("jacobi", "gauss-seidel", "multirate")
 
 
 @dataclass(frozen=True)
@@ -37,7 +37,8 @@ class MasterOptions:
     Attributes
     ----------
     name:
-        ``"jacobi"`` or ``"gauss-seidel"`` (default: measured more accurate at equal calls).
+        ``"jacobi"`` or ``"gauss-seidel"`` (default: measured more accurate at equal calls), or
+        ``"multirate"``: one adaptive step per sub-model (:mod:`cosimstep.multirate`).
     extrapolation:
         Order of the input polynomial over a step: 0 hold, 1 linear, 2 quadratic (default: the
         accurate one; see docs/concepts.md for the measured orders).

@@ -9,6 +9,7 @@ computed so far — never into a lost run.
 from __future__ import annotations
 
 import bisect
+import contextlib
 import math
 import sys
 import time
@@ -26,6 +27,24 @@ from cosimstep.store import Store
 from cosimstep.system import System
 
 HISTORY_ROWS = 4  # stored points handed to controllers/masters for extrapolation
+
+
+@dataclass
+class ModelStats:
+    """One sub-model's share of a run (for multi-rate runs each has its own steps)."""
+
+    calls: int
+    accepted: int
+    rejected: int
+    corrections: int  # multi-rate: steps re-run after a failed verification of extrapolated input
+    step_sizes: np.ndarray = field(repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        s = self.step_sizes
+        return {"calls": self.calls, "accepted": self.accepted, "rejected": self.rejected,
+                "corrections": self.corrections,
+                "h_min": float(s.min()) if s.size else None,
+                "h_max": float(s.max()) if s.size else None}
 
 
 @dataclass
@@ -48,6 +67,7 @@ class SimulationResult:
     store: str | None = None
     error: ErrorReport | None = None
     reference: np.ndarray | None = field(default=None, repr=False)
+    models: dict[str, ModelStats] = field(default_factory=dict)
 
     @property
     def success(self) -> bool:
@@ -83,6 +103,7 @@ class SimulationResult:
         }
         if self.error is not None:
             out["error"] = self.error.to_dict()
+        out["models"] = {n: m.to_dict() for n, m in self.models.items()}
         return out
 
     def to_pandas(self):
@@ -213,8 +234,13 @@ def simulate(
             raise ValueError(f"controller '{controller.name}' rejects and re-runs steps, but "
                              f"{', '.join(unable)} cannot save/restore state; choose a "
                              "controller without rollback (e.g. fixed)")
-    runner = Master(compiled, master)
     events = sorted({float(e) for m in compiled.models for e in m.time_events() if t0 < e < until})
+    if master.name == "multirate":
+        return _simulate_multirate(compiled, until, controller, master, t0=t0,
+                                   reference=reference, store=store, name=name, config=config,
+                                   progress=progress, raise_on_failure=raise_on_failure,
+                                   events=events)
+    runner = Master(compiled, master)
     sink = Store(store) if store is not None else None
     settings = {"t0": t0, "until": until, "master": vars(master),
                 "controller": controller.describe(), **(config or {})}
@@ -285,6 +311,8 @@ def simulate(
         err = error_report(times, values[:, cols], ref_values, names)
         if sink is not None:
             sink.add_reference(ref_values, cols)
+    models = {n: ModelStats(int(c), len(steps), rejected, 0, np.array(steps))
+              for n, c in zip(compiled.names, runner.calls)}
     result = SimulationResult(
         status=status, message=message, t_end=float(t), names=compiled.output_names,
         units=compiled.output_units, times=times, values=values,
@@ -292,9 +320,124 @@ def simulate(
         steps_accepted=len(steps), steps_rejected=rejected, step_sizes=np.array(steps),
         wall_s=wall, time_in_models={n: float(s) for n, s in
                                      zip(compiled.names, runner.time_in_models)},
-        store=str(store) if store is not None else None, error=err, reference=ref_values)
+        store=str(store) if store is not None else None, error=err, reference=ref_values,
+        models=models)
     if sink is not None:
         sink.finish(status, message, float(t), wall, result.summary(), result.calls,
+                    result.time_in_models)
+        sink.close()
+    if failure is not None and raise_on_failure:
+        raise failure
+    return result
+
+
+def _simulate_multirate(compiled: Any, until: float, controller: Controller,
+                        master: MasterOptions, *, t0: float, reference: Reference | None,
+                        store: str | Path | None, name: str, config: dict[str, Any] | None,
+                        progress: bool | None, raise_on_failure: bool,
+                        events: list[float]) -> SimulationResult:
+    """:func:`simulate` with one adaptive step per sub-model (:mod:`cosimstep.multirate`).
+
+    The controller lends its error policy (tolerance, limits, global budget) to every
+    sub-model's own step control. Results: every sub-model's own points, and on the union of all
+    points each trajectory evaluated by its local cubic; the error against the reference is
+    taken at each sub-model's own points (no interpolation error enters it).
+    """
+    from cosimstep.multirate import Multirate
+
+    policy = getattr(controller, "policy", None)
+    if policy is None:
+        raise ValueError(f"the multirate master needs an error-controlled controller (e.g. "
+                         f"--tol 1e-4 or --controller pc); '{controller.name}' has no tolerance")
+    h0 = getattr(controller, "h0", None) or 1e-4 * (until - t0)
+    race = Multirate(compiled, policy, min(max(h0, policy.hmin), policy.hmax),
+                     order=master.extrapolation)
+    sink = Store(store) if store is not None else None
+    settings = {"t0": t0, "until": until, "master": vars(master),
+                "controller": controller.describe(), **(config or {})}
+    if sink is not None:
+        sink.begin(name, settings, compiled.output_names, compiled.output_units)
+    status, message, failure = "ok", "completed", None
+    wall0 = time.perf_counter()
+    bar = _progress(progress, t0, until)
+    behind = [t0]
+
+    def on_step(track: Any) -> None:
+        if sink is not None:
+            sink.add_attempt(track.name, track.times[-2], track.steps[-1], True, None)
+        if bar is not None:
+            t_min = min(tr.t for tr in race.tracks)
+            bar.update(t_min - behind[0])
+            behind[0] = t_min
+
+    try:
+        race.initialize(t0, until, events)
+        race.run(until, on_step)
+    except SubModelError as exc:
+        status, message, failure = "failed", str(exc), exc
+    except StepSizeError as exc:
+        status, message, failure = "failed", str(exc), exc
+    except Exception as exc:
+        status, message, failure = "failed", f"{type(exc).__name__}: {exc}", exc
+    except KeyboardInterrupt as exc:
+        status, message, failure = "interrupted", "interrupted by the user", exc
+    finally:
+        if bar is not None:
+            bar.close()
+        for m in compiled.models:
+            with contextlib.suppress(Exception):
+                m.terminate()
+    wall = time.perf_counter() - wall0
+    tracks = race.tracks
+    started = all(tr.times for tr in tracks)
+    t_end = min(tr.t for tr in tracks) if started else t0
+    # the union of all points up to where every trajectory reaches
+    grid = np.unique(np.concatenate([np.asarray(tr.times) for tr in tracks])) if started \
+        else np.array([t0])
+    grid = grid[grid <= t_end * (1 + 1e-14) + 1e-15] if started else grid
+    values = np.hstack([race.values_at(tr.index, grid) for tr in tracks]) if started \
+        else np.empty((0, compiled.n_outputs))
+    err, ref_values = None, None
+    if reference is not None and started and t_end > t0:
+        reference.solve(t0, float(max(tr.t for tr in tracks)))
+        names = [n for n in compiled.output_names if n in reference.mapping]
+        diffs, per = [], {}
+        for tr in tracks:
+            sl = compiled.output_slices[tr.index]
+            own = [n for n in compiled.output_names[sl] if n in reference.mapping]
+            if not own:
+                continue
+            cols = [compiled.output_names[sl].index(n) for n in own]
+            t_own = np.asarray(tr.times)
+            d = np.abs(np.array(tr.rows)[:, cols] - reference.values(t_own, own))
+            diffs.append(d.ravel())
+            per.update({n: float(d[:, c].max()) for c, n in enumerate(own)})
+        all_d = np.concatenate(diffs) if diffs else np.zeros(0)
+        err = ErrorReport(float(all_d.max()) if all_d.size else 0.0,
+                          float(np.sqrt(np.mean(all_d**2))) if all_d.size else 0.0,
+                          {n: per[n] for n in names if n in per}, int(sum(len(tr.times)
+                                                                         for tr in tracks)))
+        ref_values = reference.values(grid, names)
+    if sink is not None:
+        for i, (t, y) in enumerate(zip(grid, values)):
+            sink.add_point(i, float(t), y)
+        if ref_values is not None:
+            names = [n for n in compiled.output_names if n in reference.mapping]
+            sink.add_reference(ref_values, [compiled.output_names.index(n) for n in names])
+    models = {tr.name: ModelStats(tr.calls, tr.accepted, tr.rejected, tr.corrections,
+                                  np.array(tr.steps)) for tr in tracks}
+    all_steps = np.concatenate([np.array(tr.steps) for tr in tracks]) if tracks else np.zeros(0)
+    result = SimulationResult(
+        status=status, message=message, t_end=float(t_end), names=compiled.output_names,
+        units=compiled.output_units, times=grid, values=values,
+        calls={tr.name: tr.calls for tr in tracks},
+        steps_accepted=sum(tr.accepted for tr in tracks),
+        steps_rejected=sum(tr.rejected for tr in tracks), step_sizes=all_steps, wall_s=wall,
+        time_in_models={tr.name: tr.time_in_model for tr in tracks},
+        store=str(store) if store is not None else None, error=err, reference=ref_values,
+        models=models)
+    if sink is not None:
+        sink.finish(status, message, float(t_end), wall, result.summary(), result.calls,
                     result.time_in_models)
         sink.close()
     if failure is not None and raise_on_failure:

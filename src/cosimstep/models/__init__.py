@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from functools import partial
 
 from cosimstep.adapters.ode import InternalSolver, ParameterSchedule
-from cosimstep.models import pendulum
+from cosimstep.models import linear, pendulum
 from cosimstep.submodel import SubModel
 
 Builder = Callable[[ParameterSchedule, Mapping[str, float], InternalSolver | None], SubModel]
@@ -49,3 +49,10 @@ for _n, _label in ((2, "double_pendulum"), (3, "triple_pendulum")):
         register(ModelKind(
             f"{_label}.bar{_i}", f"bar {_i} of the {_n}-bar pendulum, split model",
             pendulum.default_parameters(_n), _chain_start(_n), partial(pendulum.bar, _n, _i)))
+
+register(ModelKind("linear_coupled", "fast oscillator + slow lag (benchmark problems 6, 9), "
+                   "monolithic", linear.default_parameters(), ("u", "v", "w"), linear.monolithic))
+register(ModelKind("linear_coupled.fast", "fast part: u' = lam v + w, v' = -lam u (input w)",
+                   linear.default_parameters(), ("u", "v", "w"), linear.fast))
+register(ModelKind("linear_coupled.slow", "slow part: w' = -w + u (input u)",
+                   linear.default_parameters(), ("u", "v", "w"), linear.slow))

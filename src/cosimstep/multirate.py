@@ -1,0 +1,364 @@
+"""Multi-rate asynchronous co-simulation (thesis 4.2.6, appendix C).
+
+Every sub-model keeps its own time, its own step and its own stored trajectory. The scheduler is
+a priority queue on time: the sub-model farthest behind runs next (appendix C's "race"). The
+values it needs over ``[T, T + h]`` come from its partners' stored trajectories: interpolated
+where a partner has already been, extrapolated beyond a partner's current time.
+
+**Extrapolate, verify, correct.** A step that used extrapolated values is *pending*. A sub-model
+is only picked again when every other one has passed its time, so by then its partners' true
+trajectories cover the whole pending step: the master compares the inputs it assumed with the
+inputs that actually happened. When the difference, times the sub-model's measured sensitivity,
+exceeds the step's share of the tolerance, the sub-model is rolled back to the start of that one
+step (a single saved state per sub-model suffices, for the reason just given) and re-runs it
+with the true inputs — one extra call. The alternative, waiting for partners, would force the
+slow sub-model to step no further than the fast one and remove the point of multi-rate.
+
+**Step control per sub-model.** A sub-model's step decides how well *others* can interpolate its
+trajectory: the error a consumer makes is its sensitivity to inputs times the interpolation error
+of this trajectory. The interpolation error is estimated for free from the stored points (a cubic
+through the last four against a quartic through the last five), the sensitivity is measured by the
+corrections. The step is then chosen with the same global-error policy as the synchronous
+controllers (:class:`~cosimstep.controllers.StepPolicy`).
+"""
+
+from __future__ import annotations
+
+import bisect
+import heapq
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cosimstep.controllers.base import StepPolicy
+from cosimstep.errors import SubModelError
+from cosimstep.extrapolation import evaluate, taylor_coefficients
+from cosimstep.system import CompiledSystem
+
+NODES = np.array([0.0, 1 / 3, 2 / 3, 1.0])  # where inputs are sampled over a step (a cubic)
+STENCIL = 4  # stored points a partner's trajectory is interpolated from (a local cubic)
+RECALIBRATE = 20  # verifications between two measurements of a sensitivity
+INITIAL_GAIN = 10.0  # 1/s, until a sub-model's sensitivity has been measured once
+CENTRED = 0.5625 / 6.5625  # centred / one-sided cubic interpolation error (uniform points)
+SLOPE_TO_VALUE = 0.0234 * 4  # centred value error / (h · end-slope error) of a cubic
+
+
+@dataclass
+class Track:
+    """One sub-model's clock, trajectory, step control and statistics."""
+
+    index: int
+    name: str
+    policy: StepPolicy
+    h: float
+    times: list[float] = field(default_factory=list)
+    rows: list[np.ndarray] = field(default_factory=list)
+    segment: int = 0  # first point after the last time event (extrapolation restarts there)
+    pending: tuple | None = None  # (token, t0, h, assumed inputs at NODES)
+    gain: float | None = None  # measured sensitivity: scaled output change / (h · input change)
+    since_calibration: int = 0
+    calls: int = 0
+    accepted: int = 0
+    rejected: int = 0
+    corrections: int = 0
+    verified: int = 0
+    steps: list[float] = field(default_factory=list)
+    time_in_model: float = 0.0
+
+    @property
+    def t(self) -> float:
+        return self.times[-1]
+
+
+class Multirate:
+    """Runs a compiled system with one adaptive step per sub-model.
+
+    Parameters
+    ----------
+    system:
+        The compiled system; sub-models must be able to save and restore their state and have no
+        direct feedthrough (an output that depends on the input at the same instant has no
+        trajectory of its own to interpolate).
+    policy:
+        The error policy (tolerance, limits) every sub-model's controller copies.
+    h0:
+        First step of every sub-model.
+    order:
+        Degree of the extrapolation beyond a partner's current time.
+    """
+
+    def __init__(self, system: CompiledSystem, policy: StepPolicy, h0: float,
+                 order: int = 2) -> None:
+        problems = [f"'{n}' cannot save/restore its state"
+                    for n, m in zip(system.names, system.models)
+                    if not m.capabilities.can_save_state]
+        problems += [f"'{n}' has direct feedthrough" for n, m in zip(system.names, system.models)
+                     if m.capabilities.has_direct_feedthrough]
+        if problems:
+            raise ValueError("the multirate master re-runs steps and interpolates trajectories; "
+                             + "; ".join(problems) + " — use the gauss-seidel or jacobi master")
+        self.system = system
+        self.order = order
+        self.owner = np.empty(system.n_outputs, dtype=int)
+        for k, sl in enumerate(system.output_slices):
+            self.owner[sl] = k
+        self.consumers: list[list[int]] = [[] for _ in system.models]
+        for k, src in enumerate(system.src):
+            for j in np.asarray(src, dtype=int):
+                if k not in self.consumers[self.owner[j]]:
+                    self.consumers[self.owner[j]].append(k)
+        self.tracks = [Track(k, n, _copy_policy(policy), h0)
+                       for k, n in enumerate(system.names)]
+        self.events: list[float] = []
+
+    # -- partners' trajectories ----------------------------------------------------------------
+    def _segment_bounds(self, t: float) -> tuple[float, float]:
+        i = bisect.bisect_right(self.events, t)
+        lo = self.events[i - 1] if i > 0 else -math.inf
+        hi = self.events[i] if i < len(self.events) else math.inf
+        return lo, hi
+
+    def _trajectory(self, j: int, at: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Values of global output ``j`` at times ``at`` from its owner's stored points.
+
+        A local cubic through the nearest stored points of the same segment (between time
+        events); beyond the owner's last point the degree-``order`` extrapolation through its
+        last points. Returns the values and whether any of them was extrapolated.
+        """
+        tr = self.tracks[self.owner[j]]
+        col = j - self.system.output_slices[tr.index].start
+        times = tr.times
+        lo, hi = self._segment_bounds(float(at[0]) + 1e-12 * max(1.0, abs(float(at[0]))))
+        first = bisect.bisect_left(times, lo - 1e-9 * max(1.0, abs(lo)))
+        end = bisect.bisect_right(times, hi + 1e-9 * max(1.0, abs(hi)))
+        beyond = bool(at[-1] > times[-1] + 1e-12 * max(1.0, abs(times[-1])))
+        if beyond:  # extrapolate from the newest points of the segment
+            start = max(first, len(times) - (self.order + 1))
+            last = len(times)
+        else:  # a local cubic through the STENCIL points around the window
+            last = min(end, bisect.bisect_left(times, float(at[-1])) + STENCIL // 2)
+            start = max(first, last - STENCIL)
+            last = min(end, start + STENCIL)
+        pts = times[start:last]
+        vals = np.array([r[col] for r in tr.rows[start:last]])
+        coef = taylor_coefficients(pts, vals[:, None], float(at[0]), len(pts) - 1)
+        return np.array([evaluate(coef, float(s - at[0]))[0] for s in at]), beyond
+
+    def inputs_over(self, k: int, t: float, h: float) -> tuple[np.ndarray, bool]:
+        """Model ``k``'s inputs at ``t + NODES·h`` (rows) and whether any were extrapolated."""
+        system = self.system
+        src, a, b = np.asarray(system.src[k], dtype=int), system.a[k], system.b[k]
+        at = t + NODES * h
+        out = np.empty((len(NODES), len(src)))
+        extrapolated = False
+        for i, j in enumerate(src):
+            if a[i] == 0.0:
+                out[:, i] = b[i]
+                continue
+            v, beyond = self._trajectory(int(j), at)
+            out[:, i] = a[i] * v + b[i]
+            extrapolated |= beyond
+        return out, extrapolated
+
+    # -- calls -----------------------------------------------------------------------------------
+    def _guard(self, k: int, t: float, fn: Any, *args: Any, h: float | None = None) -> Any:
+        try:
+            return fn(*args)
+        except SubModelError:
+            raise
+        except Exception as exc:
+            raise SubModelError(self.system.names[k], t, f"{type(exc).__name__}: {exc}",
+                                h) from exc
+
+    def run_step(self, k: int, t: float, h: float, inputs: np.ndarray) -> np.ndarray:
+        """One call: model ``k`` over ``[t, t + h]`` following the cubic through ``inputs``."""
+        model = self.system.models[k]
+        tr = self.tracks[k]
+        q = model.capabilities.max_input_derivative_order
+        if len(inputs[0]):
+            coef = taylor_coefficients(list(t + NODES * h), inputs, t, 3)
+            u = coef[0] if q > 0 else evaluate(coef, 0.5 * h)
+        else:
+            coef, u = np.zeros((4, 0)), np.zeros(0)
+        start = time.perf_counter()
+        tr.calls += 1
+        self._guard(k, t, model.set_inputs, u, h=h)
+        if q > 0:
+            self._guard(k, t, model.set_input_derivatives, coef[1:q + 1], h=h)
+        self._guard(k, t, model.do_step, t, h, h=h)
+        y = np.asarray(self._guard(k, t, model.get_outputs, h=h), dtype=float)
+        tr.time_in_model += time.perf_counter() - start
+        n = len(model.outputs)
+        if y.shape != (n,):
+            raise SubModelError(tr.name, t, f"get_outputs returned {y!r}; expected {n} float(s)",
+                                h)
+        if not np.all(np.isfinite(y)):
+            bad = [model.outputs[i].name for i in np.flatnonzero(~np.isfinite(y))]
+            raise SubModelError(tr.name, t, f"returned non-finite output(s) {', '.join(bad)}", h)
+        return y
+
+    # -- error estimates -------------------------------------------------------------------------
+    def interpolation_error(self, tr: Track, t_new: float, y_new: np.ndarray) -> np.ndarray:
+        """How wrong a consumer's cubic through this trajectory is, per output (no call).
+
+        The cubic through the last four points against the quartic through the last five, at
+        the middle of the newest interval; with fewer points, one degree lower each.
+        """
+        times = [*tr.times[tr.segment:][-4:], t_new]
+        rows = np.vstack([*tr.rows[tr.segment:][-4:], y_new])
+        if len(times) < 3:
+            return np.abs(y_new - rows[0])  # start-up: the change itself
+        mid = 0.5 * (times[-2] + times[-1])
+        hi = taylor_coefficients(times, rows, mid, len(times) - 1)[0]
+        lo = taylor_coefficients(times[1:], rows[1:], mid, len(times) - 2)[0]
+        estimate = CENTRED * np.abs(hi - lo)
+        model = self.system.models[tr.index]
+        if model.capabilities.provides_derivatives:
+            # Grey box: samples too far apart to see an oscillation look smooth (aliasing); the
+            # model's own slope at the new point does not. For a smooth trajectory the cubic's
+            # slope error at its end is f·h³/4 and the centred value error 0.0234·f·h⁴,
+            # so ``0.094·h·|slope error|`` estimates the same quantity.
+            slope = np.asarray(self._guard(tr.index, t_new, model.get_output_derivatives),
+                               dtype=float)
+            end = taylor_coefficients(times[-4:], rows[-4:], t_new, len(times[-4:]) - 1)
+            h = times[-1] - times[-2]
+            estimate = np.maximum(estimate, SLOPE_TO_VALUE * h * np.abs(end[1] - slope))
+        return estimate
+
+    def consumer_gain(self, k: int) -> float:
+        gains = [self.tracks[c].gain for c in self.consumers[k]]
+        known = [g for g in gains if g is not None]
+        if not gains:
+            return 0.0
+        return max(known) if len(known) == len(gains) else max([INITIAL_GAIN, *known])
+
+    # -- the verification of a pending step ------------------------------------------------------
+    def verify(self, k: int) -> None:
+        """Compare the inputs a pending step assumed with those that happened; correct if needed."""
+        tr = self.tracks[k]
+        if tr.pending is None:
+            return
+        token, t0, h, assumed = tr.pending
+        tr.pending = None
+        actual, _ = self.inputs_over(k, t0, h)
+        scale = tr.policy.scale(actual)
+        delta = float(np.max(np.mean(np.abs(actual - assumed) / scale, axis=0)))
+        tr.verified += 1
+        tr.since_calibration += 1
+        if delta == 0.0:
+            return
+        y_old = tr.rows[-1]
+        calibrate = tr.gain is None or tr.since_calibration >= RECALIBRATE
+        if not calibrate:
+            estimate = tr.gain * h * delta * tr.policy.scale(y_old)
+            if tr.policy.ratio(estimate, y_old, h)[0] <= 0.5:
+                return  # the extrapolation was good enough: keep the step
+        model = self.system.models[k]
+        self._guard(k, t0, model.restore_state, token)
+        y = self.run_step(k, t0, h, actual)
+        tr.corrections += 1
+        tr.rows[-1] = y
+        change = np.abs(y - y_old)
+        if np.all(change <= 1e3 * np.finfo(float).eps * np.maximum(np.abs(y), 1e-300)):
+            return  # the inputs moved too little to measure anything above round-off
+        gain = float(np.max(change / tr.policy.scale(y))) / (h * delta)
+        tr.gain = gain if tr.gain is None else max(gain, 0.5 * tr.gain)
+        tr.since_calibration = 0
+
+    # -- one step of the sub-model farthest behind -----------------------------------------------
+    def advance(self, k: int, landing: float) -> bool:
+        """Verify ``k``'s pending step, then take its next accepted step (retrying on rejection).
+
+        Returns whether it landed on ``landing``.
+        """
+        self.verify(k)
+        tr = self.tracks[k]
+        model = self.system.models[k]
+        t = tr.t
+        while True:
+            h = min(tr.h, model.capabilities.max_step, tr.policy.hmax)
+            lands = h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h
+            if lands:
+                h = landing - t
+            token = self._guard(k, t, model.save_state)
+            inputs, extrapolated = self.inputs_over(k, t, h)
+            y = self.run_step(k, t, h, inputs)
+            e = self.interpolation_error(tr, t + h, y)
+            gain = self.consumer_gain(k)
+            ratio, i = tr.policy.ratio(gain * h * e, y, h)
+            accepted = ratio <= 1.0
+            k_power = 4 + tr.policy.extra_power
+            h_next = tr.policy.next_step(h, ratio, k_power, accepted)
+            if accepted or gain == 0.0:
+                break
+            tr.rejected += 1
+            self._guard(k, t, model.restore_state, token)
+            name = self.system.output_names[self.system.output_slices[k].start + i]
+            tr.policy.check(t, h, h_next, f"{name}: interpolation error "
+                                          f"{e[i]:.3g} × consumer sensitivity {gain:.3g}/s")
+            tr.h = h_next
+        tr.accepted += 1
+        tr.steps.append(h)
+        t_new = landing if lands else t + h
+        tr.pending = (token, t, h, inputs) if extrapolated else None
+        tr.times.append(t_new)
+        tr.rows.append(y)
+        tr.h = h_next
+        return lands
+
+
+    # -- the race ------------------------------------------------------------------------------
+    def initialize(self, t0: float, until: float, events: list[float]) -> None:
+        """Initialize every sub-model; the first point of every trajectory is at ``t0``."""
+        self.events = events
+        system = self.system
+        for k, m in enumerate(system.models):
+            self._guard(k, t0, m.initialize, t0)
+        y0 = np.concatenate([np.asarray(self._guard(k, t0, m.get_outputs), dtype=float)
+                             for k, m in enumerate(system.models)])
+        for k, (m, tr) in enumerate(zip(system.models, self.tracks)):
+            self._guard(k, t0, m.set_inputs, system.a[k] * y0[system.src[k]] + system.b[k])
+            tr.times, tr.rows = [t0], [y0[system.output_slices[k]]]
+            tr.policy.start(t0, until)
+
+    def run(self, until: float, on_step: Any = None) -> None:
+        """The race of appendix C: whoever is farthest behind steps until everyone is at ``until``.
+
+        ``on_step(track)`` is called after every accepted step (progress, storage).
+        """
+        queue = [(tr.t, tr.index) for tr in self.tracks]
+        heapq.heapify(queue)
+        while queue:
+            t, k = heapq.heappop(queue)
+            tr = self.tracks[k]
+            i = bisect.bisect_right(self.events, t + 1e-12 * max(1.0, abs(t)))
+            landing = min(self.events[i], until) if i < len(self.events) else until
+            lands = self.advance(k, landing)
+            if lands and landing < until:
+                tr.segment = len(tr.times) - 1  # a time event: extrapolate from here on only
+            if on_step is not None:
+                on_step(tr)
+            if not (lands and landing >= until):
+                heapq.heappush(queue, (tr.t, k))
+        for k in range(len(self.tracks)):  # the last steps: partners are all at ``until`` now
+            self.verify(k)
+
+    def values_at(self, k: int, times: np.ndarray) -> np.ndarray:
+        """Model ``k``'s outputs at arbitrary ``times`` within its trajectory (local cubics)."""
+        sl = self.system.output_slices[k]
+        out = np.empty((len(times), sl.stop - sl.start))
+        for i, t in enumerate(times):
+            for c, j in enumerate(range(sl.start, sl.stop)):
+                out[i, c] = self._trajectory(j, np.array([t]))[0][0]
+        return out
+
+
+def _copy_policy(policy: StepPolicy) -> StepPolicy:
+    fields = {k: v for k, v in vars(policy).items() if not k.startswith("_")}
+    return StepPolicy(**fields)
+
+
+__all__ = ["Multirate", "Track"]
