@@ -76,9 +76,9 @@ class Switching(Controller):
     """A fixed step while the dynamics are smooth, an adaptive controller otherwise (5.1).
 
     Starts adaptive. After ``calm`` accepted adaptive steps in a row with error ratio below 0.5 it
-    switches to a fixed step (``step``, or the adaptive controller's current step). On the fixed step it
-    watches the cost-free input defect (fig. 87) against the same tolerance; a step outside the
-    band is rejected and the adaptive controller takes over from it.
+    switches to a fixed step (``step``, or the adaptive controller's current step). On the fixed
+    step it watches the cost-free input defect (fig. 87) against the same tolerance; a step
+    outside the band is rejected and the adaptive controller takes over from it.
     """
 
     name = "switching"
