@@ -48,6 +48,8 @@ def main() -> None:
 @click.option("--until", type=float, help="End time [s] (default: the file's `until`).")
 @click.option("--master", type=click.Choice(MASTERS), help="Coupling scheme.")
 @click.option("--extrapolation", type=click.IntRange(0, 2), help="Input extrapolation order.")
+@click.option("--interpolation", help="Multirate: how partners' trajectories are read "
+              "(hold, linear, pchip, spline-not-a-knot, ...; default: local cubic).")
 @click.option("--controller", type=click.Choice(sorted(CONTROLLERS)), help="Step controller.")
 @click.option("--step", type=float, help="Fixed step (controller fixed) or initial step [s].")
 @click.option("--tol", type=float, help="Tolerance of an adaptive controller.")
@@ -58,15 +60,16 @@ def main() -> None:
               "(default: <system name>.db in the current directory).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON summary object.")
 def run(system: str, until: float | None, master: str | None, extrapolation: int | None,
-        controller: str | None, step: float | None, tol: float | None, seed: int | None,
-        options: tuple[str, ...], out: str | None, as_json: bool) -> None:
+        interpolation: str | None, controller: str | None, step: float | None,
+        tol: float | None, seed: int | None, options: tuple[str, ...], out: str | None,
+        as_json: bool) -> None:
     """Co-simulate SYSTEM (a TOML system file).
 
     With --tol and no --controller the default adaptive controller runs.
     """
     spec = _load(system, until)
     result = _run(spec, master, extrapolation, controller, step, tol, seed, out,
-                  _options(options))
+                  _options(options), interpolation)
     _report(result, as_json)
     sys.exit(0 if result.success else EXIT_FAILED)
 
@@ -91,11 +94,15 @@ def _options(pairs: tuple[str, ...]) -> dict[str, Any]:
 
 def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
          controller: str | None, step: float | None, tol: float | None, seed: int | None,
-         out: str | None, options: dict[str, Any] | None = None) -> SimulationResult:
+         out: str | None, options: dict[str, Any] | None = None,
+         interpolation: str | None = None) -> SimulationResult:
     opts = spec.master
     opts = MasterOptions(master or opts.name,
                          opts.extrapolation if extrapolation is None else extrapolation,
-                         opts.order, opts.call_timeout)
+                         opts.order, opts.call_timeout, interpolation or opts.interpolation)
+    problems = [Problem("master", p, "see `cosimstep run --help`") for p in opts.problems()]
+    if problems:
+        _config_exit(ConfigurationError(problems, spec.source))
     settings: dict[str, Any] = dict(spec.controller)
     if controller is not None and controller != settings.get("name"):
         settings = {"name": controller}  # options in the file belong to another controller
@@ -115,6 +122,11 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
     except (TypeError, ValueError) as exc:
         _config_exit(ConfigurationError(
             [Problem("controller", str(exc), "see `cosimstep run --help`")], spec.source))
+    if opts.name == "multirate" and getattr(ctrl, "policy", None) is None:
+        _config_exit(ConfigurationError(
+            [Problem("controller", f"the multirate master needs an error-controlled controller; "
+                     f"'{ctrl.name}' has no tolerance", "give --tol TOL (or --controller pc)")],
+            spec.source))
     store = out or f"{spec.name}.db"
     return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=store,
                     name=spec.name, config={"source": spec.source, "system": spec.raw},

@@ -62,6 +62,7 @@ class MasterSection(_Section):
     extrapolation: int = 2
     order: list[str] | None = None
     call_timeout: float | None = None
+    interpolation: str | None = None
 
 
 class ControllerSection(BaseModel):
@@ -189,7 +190,7 @@ def load_system(path: str | Path, until: float | None = None) -> SystemSpec:
     if master_sec is not None:
         master = MasterOptions(master_sec.name, master_sec.extrapolation,
                                tuple(master_sec.order) if master_sec.order else None,
-                               master_sec.call_timeout)
+                               master_sec.call_timeout, master_sec.interpolation)
         problems.extend(Problem(loc("master"), p) for p in master.problems())
         for m in master_sec.order or []:
             if m not in system.models:

@@ -47,12 +47,16 @@ class MasterOptions:
     call_timeout:
         Seconds one ``do_step`` may take before the run ends as failed (``None``: no limit). A
         timed-out call is abandoned in its worker thread.
+    interpolation:
+        Multi-rate only: how partners' stored trajectories are read (a method of
+        :mod:`cosimstep.interpolation`; ``None``: the built-in local cubic, fastest).
     """
 
     name: str = "gauss-seidel"
     extrapolation: int = 2
     order: tuple[str, ...] | None = None
     call_timeout: float | None = None
+    interpolation: str | None = None
 
     def problems(self) -> list[str]:
         out = []
@@ -62,6 +66,14 @@ class MasterOptions:
             out.append(f"extrapolation order {self.extrapolation} is not 0, 1 or 2")
         if self.call_timeout is not None and not self.call_timeout > 0:
             out.append("call_timeout must be positive")
+        if self.interpolation is not None:
+            from cosimstep.interpolation import INTERPOLATORS
+
+            if self.interpolation not in INTERPOLATORS:
+                out.append(f"unknown interpolation '{self.interpolation}'; choose one of "
+                           f"{', '.join(INTERPOLATORS)}")
+            elif self.name != "multirate":
+                out.append("interpolation applies to the multirate master only")
         return out
 
 

@@ -9,17 +9,19 @@ where a partner has already been, extrapolated beyond a partner's current time.
 is only picked again when every other one has passed its time, so by then its partners' true
 trajectories cover the whole pending step: the master compares the inputs it assumed with the
 inputs that actually happened. When the difference, times the sub-model's measured sensitivity,
-exceeds the step's share of the tolerance, the sub-model is rolled back to the start of that one
-step (a single saved state per sub-model suffices, for the reason just given) and re-runs it
-with the true inputs — one extra call. The alternative, waiting for partners, would force the
-slow sub-model to step no further than the fast one and remove the point of multi-rate.
+exceeds half the step's share of the tolerance, the sub-model is rolled back to the start of
+that one step (a single saved state per sub-model suffices, for the reason just given) and
+re-runs it with the true inputs — one extra call, which also measures the sensitivity. Waiting
+for partners instead would let the slow sub-model step no further than the fast one.
 
 **Step control per sub-model.** A sub-model's step decides how well *others* can interpolate its
-trajectory: the error a consumer makes is its sensitivity to inputs times the interpolation error
-of this trajectory. The interpolation error is estimated for free from the stored points (a cubic
-through the last four against a quartic through the last five), the sensitivity is measured by the
-corrections. The step is then chosen with the same global-error policy as the synchronous
-controllers (:class:`~cosimstep.controllers.StepPolicy`).
+trajectory: the error a consumer makes is its sensitivity to inputs times the interpolation
+error of this trajectory. The interpolation error is estimated for free from the stored points
+(a cubic through the newest four against a quartic through five), the sensitivity is measured by
+the corrections, and the step follows from the same global-error policy as the synchronous
+controllers (:class:`~cosimstep.controllers.StepPolicy`). Grey-box sub-models are also checked
+for steps too long to resolve their own trajectory (aliasing), which no sample-based estimate
+can see.
 """
 
 from __future__ import annotations
@@ -41,9 +43,13 @@ from cosimstep.system import CompiledSystem
 NODES = np.array([0.0, 1 / 3, 2 / 3, 1.0])  # where inputs are sampled over a step (a cubic)
 STENCIL = 4  # stored points a partner's trajectory is interpolated from (a local cubic)
 RECALIBRATE = 20  # verifications between two measurements of a sensitivity
-INITIAL_GAIN = 10.0  # 1/s, until a sub-model's sensitivity has been measured once
-CENTRED = 0.5625 / 6.5625  # centred / one-sided cubic interpolation error (uniform points)
-SLOPE_TO_VALUE = 0.0234 * 4  # centred value error / (h · end-slope error) of a cubic
+INITIAL_GAIN = 10.0  # 1/s, until a consumer's sensitivity has been measured once
+CALIBRATION = 0.086
+"""Scale of the one-sided interpolation estimate. Consumers read a trajectory mostly through
+centred stencils (0.6 of the one-sided error for a cubic) and the local errors of oscillating
+systems partly cancel over a run; 0.086 gave a measured error near ``tol`` on the mixed double
+pendulum and benchmark problem 6 (docs/benchmarks.md)."""
+ALIAS = 0.3  # relative slope mismatch beyond which a grey-box step counts as unresolved
 
 
 @dataclass
@@ -56,9 +62,10 @@ class Track:
     h: float
     times: list[float] = field(default_factory=list)
     rows: list[np.ndarray] = field(default_factory=list)
+    slopes: list[np.ndarray] = field(default_factory=list)  # grey box only
     segment: int = 0  # first point after the last time event (extrapolation restarts there)
     pending: tuple | None = None  # (token, t0, h, assumed inputs at NODES)
-    gain: float | None = None  # measured sensitivity: scaled output change / (h · input change)
+    gain: float | None = None  # measured: scaled output change / (h · scaled input change)
     since_calibration: int = 0
     calls: int = 0
     accepted: int = 0
@@ -88,20 +95,32 @@ class Multirate:
         First step of every sub-model.
     order:
         Degree of the extrapolation beyond a partner's current time.
+    interpolation:
+        ``None`` for the built-in local cubic (fast), or a method of
+        :mod:`cosimstep.interpolation` by name for the partners' trajectories.
     """
 
     def __init__(self, system: CompiledSystem, policy: StepPolicy, h0: float,
-                 order: int = 2) -> None:
+                 order: int = 2, interpolation: str | None = None) -> None:
         problems = [f"'{n}' cannot save/restore its state"
                     for n, m in zip(system.names, system.models)
                     if not m.capabilities.can_save_state]
         problems += [f"'{n}' has direct feedthrough" for n, m in zip(system.names, system.models)
                      if m.capabilities.has_direct_feedthrough]
+        if interpolation == "hermite":
+            problems += [f"'{n}' gives no output derivatives (needed by 'hermite')"
+                         for n, m in zip(system.names, system.models)
+                         if not m.capabilities.provides_derivatives]
         if problems:
             raise ValueError("the multirate master re-runs steps and interpolates trajectories; "
                              + "; ".join(problems) + " — use the gauss-seidel or jacobi master")
         self.system = system
         self.order = order
+        self.method = None
+        if interpolation is not None:
+            from cosimstep.interpolation import make_interpolator
+
+            self.method = make_interpolator(interpolation)
         self.owner = np.empty(system.n_outputs, dtype=int)
         for k, sl in enumerate(system.output_slices):
             self.owner[sl] = k
@@ -121,12 +140,14 @@ class Multirate:
         hi = self.events[i] if i < len(self.events) else math.inf
         return lo, hi
 
-    def _trajectory(self, j: int, at: np.ndarray) -> tuple[np.ndarray, bool]:
+    def _trajectory(self, j: int, at: np.ndarray,
+                    stencil: int = STENCIL) -> tuple[np.ndarray, bool]:
         """Values of global output ``j`` at times ``at`` from its owner's stored points.
 
-        A local cubic through the nearest stored points of the same segment (between time
-        events); beyond the owner's last point the degree-``order`` extrapolation through its
-        last points. Returns the values and whether any of them was extrapolated.
+        Within the owner's trajectory: a local cubic through the nearest stored points of the
+        same segment (between time events), or the chosen interpolation method over them. Beyond
+        the owner's last point: the degree-``order`` extrapolation through its last points.
+        Returns the values and whether any of them was extrapolated.
         """
         tr = self.tracks[self.owner[j]]
         col = j - self.system.output_slices[tr.index].start
@@ -136,14 +157,20 @@ class Multirate:
         end = bisect.bisect_right(times, hi + 1e-9 * max(1.0, abs(hi)))
         beyond = bool(at[-1] > times[-1] + 1e-12 * max(1.0, abs(times[-1])))
         if beyond:  # extrapolate from the newest points of the segment
-            start = max(first, len(times) - (self.order + 1))
-            last = len(times)
-        else:  # a local cubic through the STENCIL points around the window
-            last = min(end, bisect.bisect_left(times, float(at[-1])) + STENCIL // 2)
-            start = max(first, last - STENCIL)
-            last = min(end, start + STENCIL)
+            start, last = max(first, len(times) - (self.order + 1)), len(times)
+        else:  # the stencil points around the window
+            width = stencil if self.method is None else max(stencil, self.method.window)
+            last = min(end, bisect.bisect_left(times, float(at[-1])) + stencil // 2)
+            start = max(first, last - width)
+            last = min(end, start + width)
         pts = times[start:last]
         vals = np.array([r[col] for r in tr.rows[start:last]])
+        if self.method is not None and not beyond and len(pts) > 1:
+            slopes = (np.array([s[col] for s in tr.slopes[start:last]])
+                      if tr.slopes else None)
+            hermite = self.method.name == "hermite"
+            curve = self.method.fit(pts, vals, slopes if hermite else None)
+            return np.asarray(curve(at), dtype=float), False
         coef = taylor_coefficients(pts, vals[:, None], float(at[0]), len(pts) - 1)
         return np.array([evaluate(coef, float(s - at[0]))[0] for s in at]), beyond
 
@@ -180,7 +207,7 @@ class Multirate:
         q = model.capabilities.max_input_derivative_order
         if len(inputs[0]):
             coef = taylor_coefficients(list(t + NODES * h), inputs, t, 3)
-            u = coef[0] if q > 0 else evaluate(coef, 0.5 * h)
+            u = coef[0] if q > 0 else evaluate(coef, 0.5 * h)  # hold: the mid-step value
         else:
             coef, u = np.zeros((4, 0)), np.zeros(0)
         start = time.perf_counter()
@@ -200,12 +227,19 @@ class Multirate:
             raise SubModelError(tr.name, t, f"returned non-finite output(s) {', '.join(bad)}", h)
         return y
 
+    def _slope(self, k: int, t: float) -> np.ndarray | None:
+        model = self.system.models[k]
+        if not model.capabilities.provides_derivatives:
+            return None
+        return np.asarray(self._guard(k, t, model.get_output_derivatives), dtype=float)
+
     # -- error estimates -------------------------------------------------------------------------
     def interpolation_error(self, tr: Track, t_new: float, y_new: np.ndarray) -> np.ndarray:
         """How wrong a consumer's cubic through this trajectory is, per output (no call).
 
-        The cubic through the last four points against the quartic through the last five, at
-        the middle of the newest interval; with fewer points, one degree lower each.
+        The cubic through the newest four points against the quartic through five, at the
+        middle of the newest interval (with fewer points, one degree lower each), scaled by
+        :data:`CALIBRATION`.
         """
         times = [*tr.times[tr.segment:][-4:], t_new]
         rows = np.vstack([*tr.rows[tr.segment:][-4:], y_new])
@@ -214,25 +248,32 @@ class Multirate:
         mid = 0.5 * (times[-2] + times[-1])
         hi = taylor_coefficients(times, rows, mid, len(times) - 1)[0]
         lo = taylor_coefficients(times[1:], rows[1:], mid, len(times) - 2)[0]
-        estimate = CENTRED * np.abs(hi - lo)
-        model = self.system.models[tr.index]
-        if model.capabilities.provides_derivatives:
-            # Grey box: samples too far apart to see an oscillation look smooth (aliasing); the
-            # model's own slope at the new point does not. For a smooth trajectory the cubic's
-            # slope error at its end is f·h³/4 and the centred value error 0.0234·f·h⁴,
-            # so ``0.094·h·|slope error|`` estimates the same quantity.
-            slope = np.asarray(self._guard(tr.index, t_new, model.get_output_derivatives),
-                               dtype=float)
-            end = taylor_coefficients(times[-4:], rows[-4:], t_new, len(times[-4:]) - 1)
-            h = times[-1] - times[-2]
-            estimate = np.maximum(estimate, SLOPE_TO_VALUE * h * np.abs(end[1] - slope))
-        return estimate
+        return CALIBRATION * np.abs(hi - lo)
+
+    def aliased(self, tr: Track, t_new: float, y_new: np.ndarray,
+                slope: np.ndarray | None) -> bool:
+        """Grey box: does the model's own slope at the new point contradict the trajectory?
+
+        Samples too far apart to see an oscillation look smooth; the slope of the cubic through
+        the newest points then disagrees with the model's slope by more than :data:`ALIAS` of
+        the slopes involved. Black boxes cannot be checked (use ``hmax``, e.g. from
+        :func:`~cosimstep.controllers.fft_hmax`).
+        """
+        if slope is None or len(tr.times) - tr.segment < 3:
+            return False
+        times = [*tr.times[tr.segment:][-3:], t_new]
+        rows = np.vstack([*tr.rows[tr.segment:][-3:], y_new])
+        end = taylor_coefficients(times, rows, t_new, 3)[1]
+        h = times[-1] - times[-2]
+        typical = np.abs(slope) + np.abs(rows[-1] - rows[-2]) / h + tr.policy.scale(y_new) / h
+        return bool(np.any(np.abs(end - slope) > ALIAS * typical))
 
     def consumer_gain(self, k: int) -> float:
+        """The largest measured sensitivity of ``k``'s consumers (a guess until measured)."""
         gains = [self.tracks[c].gain for c in self.consumers[k]]
-        known = [g for g in gains if g is not None]
         if not gains:
             return 0.0
+        known = [g for g in gains if g is not None]
         return max(known) if len(known) == len(gains) else max([INITIAL_GAIN, *known])
 
     # -- the verification of a pending step ------------------------------------------------------
@@ -251,8 +292,7 @@ class Multirate:
         if delta == 0.0:
             return
         y_old = tr.rows[-1]
-        calibrate = tr.gain is None or tr.since_calibration >= RECALIBRATE
-        if not calibrate:
+        if tr.gain is not None and tr.since_calibration < RECALIBRATE:
             estimate = tr.gain * h * delta * tr.policy.scale(y_old)
             if tr.policy.ratio(estimate, y_old, h)[0] <= 0.5:
                 return  # the extrapolation was good enough: keep the step
@@ -261,6 +301,8 @@ class Multirate:
         y = self.run_step(k, t0, h, actual)
         tr.corrections += 1
         tr.rows[-1] = y
+        if tr.slopes:
+            tr.slopes[-1] = self._slope(k, tr.t)
         change = np.abs(y - y_old)
         if np.all(change <= 1e3 * np.finfo(float).eps * np.maximum(np.abs(y), 1e-300)):
             return  # the inputs moved too little to measure anything above round-off
@@ -277,38 +319,42 @@ class Multirate:
         self.verify(k)
         tr = self.tracks[k]
         model = self.system.models[k]
+        pol = tr.policy
         t = tr.t
         while True:
-            h = min(tr.h, model.capabilities.max_step, tr.policy.hmax)
+            h = min(tr.h, model.capabilities.max_step, pol.hmax)
             lands = h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h
             if lands:
                 h = landing - t
             token = self._guard(k, t, model.save_state)
             inputs, extrapolated = self.inputs_over(k, t, h)
             y = self.run_step(k, t, h, inputs)
-            e = self.interpolation_error(tr, t + h, y)
+            slope = self._slope(k, t + h)
             gain = self.consumer_gain(k)
-            ratio, i = tr.policy.ratio(gain * h * e, y, h)
-            accepted = ratio <= 1.0
-            k_power = 4 + tr.policy.extra_power
-            h_next = tr.policy.next_step(h, ratio, k_power, accepted)
-            if accepted or gain == 0.0:
+            e = self.interpolation_error(tr, t + h, y)
+            ratio, i = pol.ratio(gain * h * e, y, h)
+            h_next = pol.next_step(h, ratio, 4 + pol.extra_power, ratio <= 1.0)
+            aliased = self.aliased(tr, t + h, y, slope)
+            if (ratio <= 1.0 or gain == 0.0) and not aliased:
                 break
             tr.rejected += 1
             self._guard(k, t, model.restore_state, token)
-            name = self.system.output_names[self.system.output_slices[k].start + i]
-            tr.policy.check(t, h, h_next, f"{name}: interpolation error "
-                                          f"{e[i]:.3g} × consumer sensitivity {gain:.3g}/s")
+            if aliased:
+                h_next, why = 0.5 * h, "its own slope contradicts the trajectory (aliasing)"
+            else:
+                name = self.system.output_names[self.system.output_slices[k].start + i]
+                why = f"{name}: interpolation error {e[i]:.3g} × sensitivity {gain:.3g}/s"
+            pol.check(t, h, h_next, why)
             tr.h = h_next
         tr.accepted += 1
         tr.steps.append(h)
-        t_new = landing if lands else t + h
         tr.pending = (token, t, h, inputs) if extrapolated else None
-        tr.times.append(t_new)
+        tr.times.append(landing if lands else t + h)
         tr.rows.append(y)
+        if slope is not None:
+            tr.slopes.append(slope)
         tr.h = h_next
         return lands
-
 
     # -- the race ------------------------------------------------------------------------------
     def initialize(self, t0: float, until: float, events: list[float]) -> None:
@@ -322,6 +368,8 @@ class Multirate:
         for k, (m, tr) in enumerate(zip(system.models, self.tracks)):
             self._guard(k, t0, m.set_inputs, system.a[k] * y0[system.src[k]] + system.b[k])
             tr.times, tr.rows = [t0], [y0[system.output_slices[k]]]
+            slope = self._slope(k, t0)
+            tr.slopes = [slope] if slope is not None else []
             tr.policy.start(t0, until)
 
     def run(self, until: float, on_step: Any = None) -> None:
@@ -347,7 +395,7 @@ class Multirate:
             self.verify(k)
 
     def values_at(self, k: int, times: np.ndarray) -> np.ndarray:
-        """Model ``k``'s outputs at arbitrary ``times`` within its trajectory (local cubics)."""
+        """Model ``k``'s outputs at arbitrary ``times`` within its trajectory."""
         sl = self.system.output_slices[k]
         out = np.empty((len(times), sl.stop - sl.start))
         for i, t in enumerate(times):

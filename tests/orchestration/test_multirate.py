@@ -1,0 +1,96 @@
+"""The multi-rate master (thesis 4.2.6, appendix C) on split systems with slow and fast parts."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cosimstep import Fixed, System, load_system, simulate
+from cosimstep.controllers import make_controller
+from cosimstep.masters import MasterOptions
+from cosimstep.models.linear import exact
+from helpers import Clock, Gain, Integrator
+
+MULTIRATE = MasterOptions("multirate", 2)
+
+
+@pytest.fixture(scope="module")
+def mixed(examples):
+    return load_system(examples / "double_pendulum_mixed.toml")
+
+
+@pytest.fixture(scope="module")
+def linear(examples):
+    return load_system(examples / "linear_coupled.toml")
+
+
+def run(spec, tol, until, master=MULTIRATE):
+    return simulate(spec.system, until, make_controller("pc", None, tol), master,
+                    reference=spec.reference)
+
+
+def test_mixed_pendulum_slow_bar_calls_less_and_error_tracks_tol(mixed) -> None:
+    result = run(mixed, 1e-4, 3.0)
+    assert result.success
+    assert 0.1 <= result.error.max_abs / 1e-4 <= 10.0, result.error.max_abs
+    slow, fast = result.models["bar1"], result.models["bar2"]
+    assert slow.calls < fast.calls  # thesis fig. 61: each bar its own step
+    for name, stats in result.models.items():
+        # every call is an accepted step, a rejected attempt or a correction re-run
+        assert stats.calls == stats.accepted + stats.rejected + stats.corrections, name
+        assert result.calls[name] == stats.calls
+    assert result.calls_total == sum(m.calls for m in result.models.values())
+    assert len(result.models["bar1"].step_sizes) == slow.accepted
+
+
+def test_multirate_error_falls_with_the_tolerance(mixed) -> None:
+    loose, tight = (run(mixed, tol, 2.0).error.max_abs for tol in (1e-3, 1e-5))
+    assert loose / tight > 50, (loose, tight)
+
+
+def test_linear_problem_6_against_the_exact_solution(linear) -> None:
+    # the DOP853 reference agrees with expm(A t) x0, and the multi-rate run with both
+    result = run(linear, 1e-4, 1.0)
+    assert result.success
+    x0 = np.array([0.9000099990001, -9.99900009999, 1000.0])
+    times = np.array([0.25, 0.5, 1.0])
+    ref = linear.reference
+    ref.solve(0.0, 1.0)
+    assert np.max(np.abs(ref.values(times, ["fast.u", "fast.v", "slow.w"])
+                         - exact(100.0, x0, times))) < 1e-8
+    assert result.error.max_abs < 1e-3  # |w| ~ 1000: mixed tolerance 1e-4 allows ~0.1 on w
+    assert result.error.per_variable["fast.u"] < 1e-3
+
+
+@pytest.mark.parametrize("method", ["pchip", "hermite"])
+def test_partner_trajectories_through_a_named_interpolation(mixed, method) -> None:
+    result = run(mixed, 1e-4, 1.0, MasterOptions("multirate", 2, interpolation=method))
+    assert result.success
+    assert result.error.max_abs < 1e-3
+
+
+def test_multirate_refuses_what_it_cannot_run(mixed) -> None:
+    with pytest.raises(ValueError, match="error-controlled controller"):
+        simulate(mixed.system, 1.0, Fixed(0.01), MULTIRATE)
+    system = System().add("src", Integrator()).add("gain", Gain(2.0))
+    system.connect("src.x", "gain.u")
+    system.connect("gain.y", "src.u")
+    with pytest.raises(ValueError, match="'gain' has direct feedthrough"):
+        simulate(system, 1.0, make_controller("pc", None, 1e-4), MULTIRATE)
+    assert "unknown interpolation 'cubic-ish'" in MasterOptions(
+        "multirate", 2, interpolation="cubic-ish").problems()[0]
+    assert MasterOptions("jacobi", 2, interpolation="pchip").problems() == [
+        "interpolation applies to the multirate master only"]
+
+
+def test_failing_submodel_ends_the_race_cleanly() -> None:
+    system = System().add("clock", Clock(fail_at=0.5)).add("sum", Integrator(unit="s"))
+    system.connect("clock.time", "sum.u")
+    clock = system.models["clock"]
+    clock.capabilities = type(clock.capabilities)(can_save_state=True)
+    clock.save_state = lambda: clock.t  # type: ignore[method-assign]
+    clock.restore_state = lambda token: setattr(clock, "t", token)  # type: ignore
+    result = simulate(system, 2.0, make_controller("pc", None, 1e-4), MULTIRATE)
+    assert result.status == "failed"
+    assert "sub-model 'clock' failed" in result.message and "RuntimeError" in result.message
+    assert 0.0 < result.t_end <= 0.5 and len(result.times) > 1  # results so far kept
