@@ -132,6 +132,7 @@ class Multirate:
         self.tracks = [Track(k, n, _copy_policy(policy), h0)
                        for k, n in enumerate(system.names)]
         self.events: list[float] = []
+        self.on_attempt: Any = None  # on_attempt(name, t, h, accepted): for the results store
 
     # -- partners' trajectories ----------------------------------------------------------------
     def _segment_bounds(self, t: float) -> tuple[float, float]:
@@ -338,6 +339,8 @@ class Multirate:
             if (ratio <= 1.0 or gain == 0.0) and not aliased:
                 break
             tr.rejected += 1
+            if self.on_attempt is not None:
+                self.on_attempt(tr.name, t, h, False)
             self._guard(k, t, model.restore_state, token)
             if aliased:
                 h_next, why = 0.5 * h, "its own slope contradicts the trajectory (aliasing)"
@@ -348,6 +351,8 @@ class Multirate:
             tr.h = h_next
         tr.accepted += 1
         tr.steps.append(h)
+        if self.on_attempt is not None:
+            self.on_attempt(tr.name, t, h, True)
         tr.pending = (token, t, h, inputs) if extrapolated else None
         tr.times.append(landing if lands else t + h)
         tr.rows.append(y)

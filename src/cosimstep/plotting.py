@@ -40,11 +40,24 @@ def plot_run(run: StoredRun, path: str | Path, variables: list[str] | None = Non
         ax.grid(alpha=0.3)
     ax = axes[-1]
     att = run.attempts
-    if att.size:
+    models = sorted({m for m in run.attempt_models if m is not None})
+    if att.size and len(models) > 1:
+        # multi-rate: every sub-model's own step history in its own colour (thesis fig. 61)
+        who = np.array([m or "" for m in run.attempt_models])
+        for i, m in enumerate(models):
+            c = colours[i % len(colours)]
+            ok = (who == m) & (att[:, 2] > 0)
+            bad = (who == m) & (att[:, 2] == 0)
+            ax.step(att[ok, 0], att[ok, 1], where="post", lw=1, color=c, label=f"{m} step")
+            if bad.any():
+                ax.plot(att[bad, 0], att[bad, 1], "x", color=c, ms=4,
+                        label=f"{m} rejected")
+    elif att.size:
         ok = att[:, 2] > 0
         ax.step(att[ok, 0], att[ok, 1], where="post", lw=1, color="k", label="accepted step")
         if (~ok).any():
             ax.plot(att[~ok, 0], att[~ok, 1], "rx", ms=4, label="rejected attempt")
+    if att.size:
         if att[:, 1].max() > 5 * att[:, 1].min():
             ax.set_yscale("log")
         else:

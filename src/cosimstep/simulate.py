@@ -362,9 +362,10 @@ def _simulate_multirate(compiled: Any, until: float, controller: Controller,
     bar = _progress(progress, t0, until)
     behind = [t0]
 
+    if sink is not None:
+        race.on_attempt = lambda name, t, h, ok: sink.add_attempt(name, t, h, ok, None)
+
     def on_step(track: Any) -> None:
-        if sink is not None:
-            sink.add_attempt(track.name, track.times[-2], track.steps[-1], True, None)
         if bar is not None:
             t_min = min(tr.t for tr in race.tracks)
             bar.update(t_min - behind[0])
