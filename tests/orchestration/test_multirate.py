@@ -94,3 +94,21 @@ def test_failing_submodel_ends_the_race_cleanly() -> None:
     assert result.status == "failed"
     assert "sub-model 'clock' failed" in result.message and "RuntimeError" in result.message
     assert 0.0 < result.t_end <= 0.5 and len(result.times) > 1  # results so far kept
+
+
+def test_store_and_plot_keep_each_submodels_steps(mixed, tmp_path) -> None:
+    from cosimstep.plotting import plot_run
+    from cosimstep.store import read_run
+
+    db = tmp_path / "mr.db"
+    result = simulate(mixed.system, 1.0, make_controller("pc", None, 1e-4), MULTIRATE,
+                      reference=mixed.reference, store=db)
+    stored = read_run(db)
+    assert stored.status == "ok" and stored.summary["models"]["bar1"]["calls"] == \
+        result.models["bar1"].calls
+    for name, stats in result.models.items():
+        mine = [i for i, m in enumerate(stored.attempt_models) if m == name]
+        accepted = stored.attempts[mine, 2] > 0
+        assert accepted.sum() == stats.accepted and (~accepted).sum() == stats.rejected
+    assert np.allclose(stored.values, result.values)
+    assert plot_run(stored, tmp_path / "mr.png").stat().st_size > 10_000
