@@ -409,11 +409,15 @@ class Lagrange(Interpolator):
                             t[-1], scale)
 
 
-class _Barycentric(Curve):
-    def __init__(self, tail: tuple[int, ...], fitted: BarycentricInterpolator, t0: float,
-                 scale: float) -> None:
+class _ScaledCurve(Curve):
+    """A SciPy interpolant fitted on the normalised time ``(t − t0) / scale``."""
+
+    def __init__(self, tail: tuple[int, ...], fitted: Any, t0: float, scale: float) -> None:
         super().__init__(tail)
         self._fitted, self._t0, self._scale = fitted, t0, scale
+
+
+class _Barycentric(_ScaledCurve):
 
     def _evaluate(self, t: np.ndarray, nu: int) -> np.ndarray:
         x = (t - self._t0) / self._scale
@@ -468,11 +472,7 @@ class Rbf(Interpolator):
         return _RbfCurve(tail, fitted, t[-1], scale)
 
 
-class _RbfCurve(Curve):
-    def __init__(self, tail: tuple[int, ...], fitted: RBFInterpolator, t0: float,
-                 scale: float) -> None:
-        super().__init__(tail)
-        self._fitted, self._t0, self._scale = fitted, t0, scale
+class _RbfCurve(_ScaledCurve):
 
     def _evaluate(self, t: np.ndarray, nu: int) -> np.ndarray:
         x = (t - self._t0) / self._scale

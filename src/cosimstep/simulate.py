@@ -322,9 +322,15 @@ def simulate(
                                      zip(compiled.names, runner.time_in_models)},
         store=str(store) if store is not None else None, error=err, reference=ref_values,
         models=models)
+    return _finish(result, sink, failure, raise_on_failure)
+
+
+def _finish(result: SimulationResult, sink: Store | None, failure: BaseException | None,
+            raise_on_failure: bool) -> SimulationResult:
+    """Close the store with the run's summary; raise the failure if asked to."""
     if sink is not None:
-        sink.finish(status, message, float(t), wall, result.summary(), result.calls,
-                    result.time_in_models)
+        sink.finish(result.status, result.message, result.t_end, result.wall_s,
+                    result.summary(), result.calls, result.time_in_models)
         sink.close()
     if failure is not None and raise_on_failure:
         raise failure
@@ -437,13 +443,7 @@ def _simulate_multirate(compiled: Any, until: float, controller: Controller,
         time_in_models={tr.name: tr.time_in_model for tr in tracks},
         store=str(store) if store is not None else None, error=err, reference=ref_values,
         models=models)
-    if sink is not None:
-        sink.finish(status, message, float(t_end), wall, result.summary(), result.calls,
-                    result.time_in_models)
-        sink.close()
-    if failure is not None and raise_on_failure:
-        raise failure
-    return result
+    return _finish(result, sink, failure, raise_on_failure)
 
 
 def _progress(progress: bool | None, t0: float, until: float) -> Any:
