@@ -123,9 +123,10 @@ def sweeps(pool: Pool) -> list[str]:
             "solver": f'{{ method = "rk4", max_dt = {0.01 / lam:g} }}'})
         jobs.append((f"problem 6, λ = {lam:g}", path, "slow", "fast", tol))
     for lam in (3.0, 10.0, 30.0):
+        # internal RK4 steps resolve the fast bar (its period shrinks like 1/λ)
         path = _variant("double_pendulum_mixed", f"pendulum_{lam:g}", {
             "l2": repr(1.0 / lam**2), "m2": "0.1",
-            "until": "10.0"})
+            "until": f'10.0\nsolver = {{ method = "rk4", max_dt = {1e-3 / lam:g} }}'})
         jobs.append((f"pendulum, l2 = l1/λ², λ = {lam:g}", path, "bar1", "bar2", tol))
     rows = pool.map(_sweep_one, jobs)
     return ["### Time-scale sweeps (benchmark problem 9), multirate at tol 1e-4", "",
@@ -167,12 +168,11 @@ def main() -> None:
                "reference.", ""]
         out += comparison(pool, "double_pendulum_mixed (l1 = 1, l2 = 0.5), 10 s",
                           EXAMPLES / "double_pendulum_mixed.toml", "bar1", "bar2")
-        out += [""] + comparison(pool, "double_pendulum_strongly_mixed (l2 = 0.05, m2 = 0.1), "
-                                 "10 s", EXAMPLES / "double_pendulum_strongly_mixed.toml",
-                                 "bar1", "bar2")
-        out += [""] + comparison(pool, "linear_coupled (problem 6, λ = 100), 2 s",
-                                 EXAMPLES / "linear_coupled.toml", "slow", "fast")
-        out += [""] + sweeps(pool) + [""] + triple(pool) + ["", MARK_END]
+        strong = comparison(pool, "double_pendulum_strongly_mixed (l2 = 0.05, m2 = 0.1), 10 s",
+                            EXAMPLES / "double_pendulum_strongly_mixed.toml", "bar1", "bar2")
+        linear = comparison(pool, "linear_coupled (problem 6, λ = 100), 2 s",
+                            EXAMPLES / "linear_coupled.toml", "slow", "fast")
+        out += ["", *strong, "", *linear, "", *sweeps(pool), "", *triple(pool), "", MARK_END]
     write_section(ROOT / "docs" / "benchmarks.md", "\n".join(out), MARK_BEGIN, MARK_END)
 
 
