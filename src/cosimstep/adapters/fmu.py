@@ -1,0 +1,394 @@
+"""FMI co-simulation FMUs as sub-models, through FMPy (issue 5).
+
+:class:`FmuSubModel` runs an FMI 2.0 co-simulation FMU: its Real inputs and outputs become ports
+(names, units and start values from ``modelDescription.xml``), start values and parameters can be
+overridden by name, and the capabilities come from the model description — state save/restore
+from ``canGetAndSetFMUstate``, output derivatives (grey box) from ``maxOutputDerivativeOrder``,
+input derivatives from ``canInterpolateInputs``.
+
+An FMU is checked before anything is unpacked (:func:`check_fmu`): a file that is not a zip
+archive, has no ``modelDescription.xml``, has no binary for this platform, is model exchange only,
+or holds an entry that would unpack outside its folder is refused with a ``ValueError`` naming the
+file and the reason. The archive is unpacked into a temporary folder by :meth:`initialize` and
+the folder is removed by :meth:`terminate`, also when a call failed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import posixpath
+import shutil
+import tempfile
+import weakref
+import zipfile
+from collections import deque
+from collections.abc import Mapping
+from ctypes import byref
+from pathlib import Path
+from typing import Any
+
+import fmpy
+import numpy as np
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+    fmi2FMUstate,
+)
+from fmpy.model_description import ModelDescription, ModelVariable
+
+from cosimstep.submodel import Capabilities, Port, SubModel
+
+INPUT_DERIVATIVE_ORDER = 3  # offered to masters when an FMU can interpolate inputs
+_STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
+_SETTABLE_BEFORE_INIT = ("exact", "approx")
+
+
+class FmuError(RuntimeError):
+    """An FMI call failed; the message names the FMU, the call and what the FMU logged."""
+
+
+def check_fmu(path: str | Path) -> ModelDescription:
+    """Read and check an FMU without unpacking it; raise ``ValueError`` saying why it is refused."""
+    path = Path(path)
+
+    def refuse(reason: str) -> ValueError:
+        return ValueError(f"cannot use FMU {path}: {reason}")
+
+    if not path.is_file():
+        raise refuse("no such file")
+    if not zipfile.is_zipfile(path):
+        raise refuse("not a zip archive (an FMU is a zip file)")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = zf.namelist()
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise refuse(f"corrupt zip archive ({exc})") from exc
+    for name in names:
+        if _escapes(name):
+            raise refuse(f"archive entry '{name}' would unpack outside the FMU's folder "
+                         "(absolute path or '..'); refusing to unpack it")
+    if "modelDescription.xml" not in names:
+        raise refuse("no modelDescription.xml at the top of the archive")
+    try:
+        md = fmpy.read_model_description(str(path), validate=True)
+    except Exception as exc:  # FMPy raises plain Exceptions for invalid descriptions
+        raise refuse(f"invalid modelDescription.xml: {exc}") from exc
+    if md.fmiVersion != "2.0":
+        raise refuse(f"FMI {md.fmiVersion} is not supported yet (FMI 2.0 only)")
+    if md.coSimulation is None:
+        raise refuse("model exchange only; only co-simulation FMUs can be used for now")
+    binary = f"binaries/{fmpy.platform}/{md.coSimulation.modelIdentifier}" \
+             f"{fmpy.sharedLibraryExtension}"
+    if binary not in names:
+        found = sorted({n.split("/")[1] for n in names
+                        if n.startswith("binaries/") and n.count("/") >= 2})
+        raise refuse(f"no binary for this platform ({binary} is missing; it has binaries for: "
+                     f"{', '.join(found) or 'none'})")
+    return md
+
+
+def _escapes(name: str) -> bool:
+    """Whether a zip entry name points outside the folder it is unpacked into."""
+    if "\\" in name or name.startswith("/") or (len(name) > 1 and name[1] == ":"):
+        return True
+    return ".." in posixpath.normpath(name).split("/")
+
+
+class _SavedState:
+    """A token for one saved FMU state. When the master drops it, its memory is kept for reuse
+    (``fmi2GetFMUstate`` overwrites a given state in place); :meth:`FmuSubModel.terminate` frees
+    it in the FMU."""
+
+    __slots__ = ("__weakref__", "owner", "pointer")
+
+    def __init__(self, owner: FmuSubModel, pointer: fmi2FMUstate) -> None:
+        self.owner: FmuSubModel | None = owner
+        self.pointer = pointer
+
+    def __del__(self) -> None:
+        if self.owner is not None:
+            self.owner._spare_states.append(self.pointer)
+
+
+class FmuSubModel(SubModel):
+    """An FMI 2.0 co-simulation FMU as a sub-model.
+
+    Parameters
+    ----------
+    path:
+        The ``.fmu`` file.
+    start:
+        Start values and parameters by variable name (``{"theta": 0.4, "m1": 2.0}``); they are set
+        before initialization and replace the model description's start values.
+    instance_name:
+        Name of the FMU instance (in messages and the FMU's log); default the model name.
+    input_derivative_order:
+        Highest input derivative offered to masters when the FMU can interpolate inputs
+        (``canInterpolateInputs``); FMI 2.0 does not declare a limit.
+    tolerance:
+        Passed to ``fmi2SetupExperiment`` for the FMU's internal solver, if given.
+    """
+
+    def __init__(self, path: str | Path, start: Mapping[str, float] | None = None, *,
+                 instance_name: str | None = None,
+                 input_derivative_order: int = INPUT_DERIVATIVE_ORDER,
+                 tolerance: float | None = None) -> None:
+        self.path = Path(path)
+        md = check_fmu(self.path)
+        self.model_description = md
+        self.name = instance_name or md.modelName
+        self.tolerance = tolerance
+        cs = md.coSimulation
+        by_name = {v.name: v for v in md.modelVariables}
+        self.start = self._check_start(dict(start or {}), by_name)
+        ins = [v for v in md.modelVariables if v.causality == "input" and v.type == "Real"]
+        outs = [v for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
+        self.inputs = tuple(self._port(v) for v in ins)
+        self.outputs = tuple(self._port(v) for v in outs)
+        self._in_vr = [v.valueReference for v in ins]
+        self._out_vr = [v.valueReference for v in outs]
+        order = input_derivative_order if cs.canInterpolateInputs else 0
+        self.capabilities = Capabilities(
+            can_save_state=bool(cs.canGetAndSetFMUstate),
+            provides_derivatives=cs.maxOutputDerivativeOrder >= 1,
+            max_input_derivative_order=order,
+            feedthrough=self._feedthrough(md, ins, outs),
+        )
+        # Input derivatives for every order at once: orders 1..q for each input, in one call.
+        self._deriv_vr = self._in_vr * order
+        self._deriv_order = [k for k in range(1, order + 1) for _ in self._in_vr]
+        self._fmu: FMU2Slave | None = None
+        self._unzipped: Path | None = None
+        self._initialized = False
+        self._derivatives_set = False  # the FMU holds nonzero input derivatives
+        self._derivatives_stale = False  # ...which the next step must not use
+        self._states: weakref.WeakSet[_SavedState] = weakref.WeakSet()
+        self._spare_states: list[fmi2FMUstate] = []
+        self._log: deque[str] = deque(maxlen=20)
+        self._callbacks = self._make_callbacks()
+
+    # -- construction helpers ------------------------------------------------------------------
+    def _check_start(self, start: dict[str, Any],
+                     by_name: Mapping[str, ModelVariable]) -> dict[str, Any]:
+        problems = []
+        for name in start:
+            v = by_name.get(name)
+            if v is None:
+                problems.append(f"'{name}' is not a variable of the FMU")
+            elif v.variability == "constant" or v.causality in ("independent", "local") or (
+                    v.causality in ("output", "calculatedParameter")
+                    and v.initial not in _SETTABLE_BEFORE_INIT):
+                problems.append(f"'{name}' ({v.causality}, {v.variability}) cannot be set")
+            elif v.type not in ("Real", "Integer", "Enumeration", "Boolean"):
+                problems.append(f"'{name}' is of type {v.type}, which cannot be set here")
+        if problems:
+            raise ValueError(f"`start` for FMU {self.path}: {'; '.join(problems)}")
+        return {name: (by_name[name], value) for name, value in start.items()}
+
+    def _port(self, v: ModelVariable) -> Port:
+        value = self.start[v.name][1] if v.name in self.start else v.start
+        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or "1"
+        return Port(v.name, unit, None if value is None else float(value), v.description or "")
+
+    @staticmethod
+    def _feedthrough(md: ModelDescription, ins: list[ModelVariable],
+                     outs: list[ModelVariable]) -> dict[str, tuple[str, ...]]:
+        inputs = {id(v) for v in ins}
+        declared = {id(u.variable): u for u in md.outputs}
+        result: dict[str, tuple[str, ...]] = {}
+        for v in outs:
+            unknown = declared.get(id(v))
+            if unknown is None or unknown.dependencies is None:
+                deps = tuple(i.name for i in ins)  # undeclared: FMI says "depends on all"
+            else:
+                deps = tuple(d.name for d in unknown.dependencies if id(d) in inputs)
+            result[v.name] = deps
+        return result
+
+    def _make_callbacks(self) -> fmi2CallbackFunctions:
+        log = self._log
+
+        def logger(env: Any, instance: bytes, status: int, category: bytes,
+                   message: bytes) -> None:
+            label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+            log.append(f"[{label}] {message.decode('utf-8', 'replace')}")
+
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+        with contextlib.suppress(Exception):  # formats the C logger's variadic arguments
+            from fmpy.logging import addLoggerProxy
+
+            addLoggerProxy(byref(callbacks))
+        return callbacks
+
+    def _error(self, call: str, exc: BaseException) -> FmuError:
+        if isinstance(exc, FMICallException):
+            status = _STATUS[exc.status] if 0 <= exc.status < len(_STATUS) else str(exc.status)
+            what = f"{exc.function} returned {status}"
+        else:
+            what = f"{call} failed: {exc}"
+        logged = "; ".join(self._log)
+        self._log.clear()
+        return FmuError(f"FMU '{self.name}' ({self.path.name}): {what}"
+                        + (f" — FMU log: {logged}" if logged else ""))
+
+    # -- SubModel API ----------------------------------------------------------------------------
+    def initialize(self, t0: float) -> None:
+        if self._fmu is not None:
+            self.terminate()
+        md = self.model_description
+        try:
+            self._unzipped = Path(tempfile.mkdtemp(prefix=f"cosimstep-{self.name}-"))
+            fmpy.extract(str(self.path), unzipdir=str(self._unzipped))
+            self._fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(self._unzipped),
+                                  modelIdentifier=md.coSimulation.modelIdentifier,
+                                  instanceName=self.name)
+            fmu = self._fmu
+            fmu.instantiate(callbacks=self._callbacks)
+            fmu.setupExperiment(tolerance=self.tolerance, startTime=t0)
+            early = {n: vv for n, vv in self.start.items() if vv[0].causality != "input"}
+            late = {n: vv for n, vv in self.start.items() if vv[0].causality == "input"}
+            self._set_values(early)
+            fmu.enterInitializationMode()
+            self._set_values(late)
+            fmu.exitInitializationMode()
+        except Exception as exc:
+            error = self._error("initialization", exc)
+            with contextlib.suppress(Exception):
+                self.terminate()
+            raise error from exc
+        self._initialized = True
+        self._derivatives_set = self._derivatives_stale = False
+
+    def _set_values(self, values: Mapping[str, tuple[ModelVariable, Any]]) -> None:
+        fmu = self._fmu
+        assert fmu is not None
+        for v, value in values.values():
+            if v.type == "Real":
+                fmu.setReal([v.valueReference], [float(value)])
+            elif v.type == "Boolean":
+                fmu.setBoolean([v.valueReference], [bool(value)])
+            else:
+                fmu.setInteger([v.valueReference], [int(value)])
+
+    def _live(self) -> FMU2Slave:
+        if self._fmu is None:
+            raise FmuError(f"FMU '{self.name}' ({self.path.name}) is not initialized")
+        return self._fmu
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        try:
+            self._live().setReal(self._in_vr, [float(x) for x in values])
+        except FMICallException as exc:
+            raise self._error("fmi2SetReal", exc) from None
+        # Like OdeSubModel: new values alone mean inputs held over the step.
+        self._derivatives_stale = self._derivatives_set
+
+    def set_input_derivatives(self, derivatives: np.ndarray) -> None:
+        order = self.capabilities.max_input_derivative_order
+        if order == 0:
+            super().set_input_derivatives(derivatives)
+        d = np.zeros((order, len(self._in_vr)))
+        given = np.asarray(derivatives, dtype=float)[:order]
+        d[: given.shape[0]] = given
+        self._send_derivatives(d)
+
+    def _send_derivatives(self, d: np.ndarray) -> None:
+        try:
+            self._live().setRealInputDerivatives(self._deriv_vr, self._deriv_order,
+                                                 d.ravel().tolist())
+        except FMICallException as exc:
+            raise self._error("fmi2SetRealInputDerivatives", exc) from None
+        self._derivatives_set = bool(d.any())
+        self._derivatives_stale = False
+
+    def do_step(self, t: float, h: float) -> None:
+        if self._derivatives_stale:
+            self._send_derivatives(np.zeros((self.capabilities.max_input_derivative_order,
+                                             len(self._in_vr))))
+        try:
+            self._live().doStep(t, h)
+        except FMICallException as exc:
+            raise self._error("fmi2DoStep", exc) from None
+
+    def get_outputs(self) -> np.ndarray:
+        try:
+            return np.array(self._live().getReal(self._out_vr))
+        except FMICallException as exc:
+            raise self._error("fmi2GetReal", exc) from None
+
+    def get_output_derivatives(self) -> np.ndarray:
+        if not self.capabilities.provides_derivatives:
+            return super().get_output_derivatives()
+        try:
+            return np.array(self._live().getRealOutputDerivatives(
+                self._out_vr, [1] * len(self._out_vr)))
+        except FMICallException as exc:
+            raise self._error("fmi2GetRealOutputDerivatives", exc) from None
+
+    def save_state(self) -> Any:
+        if not self.capabilities.can_save_state:
+            return super().save_state()
+        fmu = self._live()
+        pointer = self._spare_states.pop() if self._spare_states else fmi2FMUstate()
+        try:
+            fmu.fmi2GetFMUstate(fmu.component, byref(pointer))
+        except FMICallException as exc:
+            raise self._error("fmi2GetFMUstate", exc) from None
+        token = _SavedState(self, pointer)
+        self._states.add(token)
+        # The input-derivative bookkeeping is part of the state the FMU now holds.
+        return token, self._derivatives_set, self._derivatives_stale
+
+    def restore_state(self, token: Any) -> None:
+        saved, derivatives_set, derivatives_stale = token
+        if not isinstance(saved, _SavedState) or saved.owner is not self:
+            raise ValueError(f"FMU '{self.name}': restore_state got a state this instance did "
+                             "not save, or one freed by terminate()")
+        try:
+            self._live().setFMUstate(saved.pointer)
+        except FMICallException as exc:
+            raise self._error("fmi2SetFMUstate", exc) from None
+        self._derivatives_set, self._derivatives_stale = derivatives_set, derivatives_stale
+
+    def terminate(self) -> None:
+        """Terminate and free the instance, free saved states, remove the unpacked files.
+
+        Every part runs even if an earlier one failed; the first failure is raised at the end.
+        """
+        fmu, self._fmu = self._fmu, None
+        first: Exception | None = None
+        if fmu is not None:
+            if self._initialized:
+                try:
+                    fmu.terminate()
+                except Exception as exc:
+                    first = self._error("fmi2Terminate", exc)
+            for saved in list(self._states):
+                saved.owner = None
+                self._spare_states.append(saved.pointer)
+            self._states = weakref.WeakSet()
+            for pointer in self._spare_states:
+                with contextlib.suppress(Exception):
+                    fmu.freeFMUstate(pointer)
+            self._spare_states = []
+            if fmu.component is not None:
+                try:
+                    fmu.freeInstance()
+                except Exception as exc:
+                    first = first or self._error("fmi2FreeInstance", exc)
+            else:
+                with contextlib.suppress(Exception):
+                    fmu.freeLibrary()
+        self._initialized = False
+        if self._unzipped is not None:
+            shutil.rmtree(self._unzipped, ignore_errors=True)
+            self._unzipped = None
+        if first is not None:
+            raise first
