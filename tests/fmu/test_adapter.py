@@ -150,3 +150,25 @@ def test_refusals(bar_fmus: dict[int, Path], tmp_path: Path) -> None:
         assert str(path) in str(info.value)
     assert not (tmp_path.parent / "evil.txt").exists()
     shutil.rmtree(tmp_path)
+
+
+def test_serialized_state_round_trip(bar_fmus: dict[int, Path]) -> None:
+    model = FmuSubModel(bar_fmus[2])
+    model.initialize(0.0)
+    try:
+        _, t = drive(model, 4)
+        fmu = model._fmu
+        state = fmu.getFMUstate()
+        data = fmu.serializeFMUstate(state)
+        fmu.freeFMUstate(state)
+        first, _ = drive(model, 2, t)
+        copy = fmu.deSerializeFMUstate(data)
+        fmu.setFMUstate(copy)
+        fmu.freeFMUstate(copy)
+        again, _ = drive(model, 2, t)
+        with pytest.raises(Exception, match="fmi2DeSerializeFMUstate"):
+            fmu.deSerializeFMUstate(data[:-1])
+    finally:
+        model.terminate()
+    for (ya, da), (yb, db) in zip(first, again):
+        assert np.array_equal(ya, yb) and np.array_equal(da, db)

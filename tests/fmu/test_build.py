@@ -47,3 +47,20 @@ def test_explicit_output_and_missing_compiler(tmp_path: Path) -> None:
         build_fmu("pendulum_bar2", tmp_path, compiler="no-such-cc")
     with pytest.raises(FmuBuildError, match="neither a built-in FMU"):
         build_fmu("pendulum_bar3", tmp_path)
+
+
+def test_rebuild_from_shipped_sources(bar_fmus: dict[int, Path], tmp_path: Path) -> None:
+    """The archive's sources/ plus its model description build the same FMU again."""
+    folder = tmp_path / "src"
+    folder.mkdir()
+    with zipfile.ZipFile(bar_fmus[2]) as zf:
+        for name in zf.namelist():
+            if name.startswith("sources/") or name == "modelDescription.xml":
+                (folder / Path(name).name).write_bytes(zf.read(name))
+    rebuilt = build_fmu(folder, tmp_path / "out.fmu")
+    with zipfile.ZipFile(rebuilt) as zf:
+        assert "binaries/linux64/pendulum_bar2.so" in zf.namelist()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(FmuBuildError, match=r"no modelDescription\.xml and no \*\.c files"):
+        build_fmu(empty, tmp_path)

@@ -49,22 +49,29 @@ class Recipe:
 
     model_description: Path
     sources: tuple[Path, ...]
-    headers: tuple[Path, ...] = ()
+    headers: tuple[Path, ...] = ()  # shipped in sources/, not compiled on their own
     defines: Mapping[str, str] = field(default_factory=dict)
 
     @classmethod
     def from_folder(cls, folder: Path) -> Recipe:
         folder = Path(folder)
         md = folder / "modelDescription.xml"
-        sources = tuple(sorted(folder.glob("*.c")))
         problems = []
         if not md.is_file():
             problems.append("no modelDescription.xml")
+        # The model description's <SourceFiles> names what to compile; without it, every *.c.
+        listed = _listed_sources(md) if md.is_file() else []
+        sources = tuple(folder / n for n in listed) if listed else tuple(sorted(folder.glob("*.c")))
+        missing = [s.name for s in sources if not s.is_file()]
+        if missing:
+            problems.append(f"listed source file(s) {', '.join(missing)} missing")
         if not sources:
             problems.append("no *.c files")
         if problems:
             raise FmuBuildError(f"cannot build an FMU from {folder}: {' and '.join(problems)}")
-        return cls(md, sources, tuple(sorted(folder.glob("*.h"))))
+        # Files shipped but not compiled themselves: headers and included sources.
+        extra = sorted(p for p in folder.glob("*.[ch]") if p not in sources)
+        return cls(md, sources, tuple(extra))
 
     @property
     def model_identifier(self) -> str:
@@ -84,6 +91,15 @@ class Recipe:
         lines += [f"#define {k} {v}" for k, v in sorted(self.defines.items())]
         lines.append(f'#include "{self.sources[0].name}"')
         return "\n".join(lines) + "\n"
+
+
+def _listed_sources(model_description: Path) -> list[str]:
+    try:
+        root = ET.parse(model_description).getroot()
+    except (OSError, ET.ParseError) as exc:
+        raise FmuBuildError(f"cannot read {model_description}: {exc}") from exc
+    return [str(f.get("name")) for f in root.findall("CoSimulation/SourceFiles/File")
+            if f.get("name")]
 
 
 def _pendulum_bar(bar: int) -> Recipe:
