@@ -49,6 +49,7 @@ CALIBRATION = 0.086
 centred stencils (0.6 of the one-sided error for a cubic) and the local errors of oscillating
 systems partly cancel over a run; 0.086 gave a measured error near ``tol`` on the mixed double
 pendulum and benchmark problem 6 (docs/benchmarks.md)."""
+KEEP = 0.5  # an extrapolated step is kept when its estimated error is below this share
 ALIAS = 0.3  # relative slope mismatch beyond which a grey-box step counts as unresolved
 
 
@@ -295,7 +296,7 @@ class Multirate:
         y_old = tr.rows[-1]
         if tr.gain is not None and tr.since_calibration < RECALIBRATE:
             estimate = tr.gain * h * delta * tr.policy.scale(y_old)
-            if tr.policy.ratio(estimate, y_old, h)[0] <= 0.5:
+            if tr.policy.ratio(estimate, y_old, h)[0] <= KEEP:
                 return  # the extrapolation was good enough: keep the step
         model = self.system.models[k]
         self._guard(k, t0, model.restore_state, token)
