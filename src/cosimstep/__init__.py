@@ -12,6 +12,7 @@ from cosimstep.errors import ConfigurationError, Problem, StepSizeError, SubMode
 from cosimstep.masters import MasterOptions
 from cosimstep.reference import Reference
 from cosimstep.simulate import SimulationResult, simulate
+from cosimstep.ssp import load_ssp
 from cosimstep.store import read_run
 from cosimstep.submodel import Capabilities, Port, SubModel
 from cosimstep.system import System
@@ -20,5 +21,5 @@ __all__ = [
     "RK4", "Capabilities", "ConfigurationError", "Controller", "Fixed", "MasterOptions",
     "OdeSubModel", "ParameterSchedule", "Port", "Problem", "Random", "Reference",
     "SimulationResult", "SolveIvp", "StepSizeError", "SubModel", "SubModelError", "System",
-    "SystemSpec", "load_system", "make_controller", "read_run", "simulate",
+    "SystemSpec", "load_ssp", "load_system", "make_controller", "read_run", "simulate",
 ]

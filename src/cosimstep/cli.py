@@ -1,4 +1,4 @@
-"""Command line: ``cosimstep run | validate | plot | demo | models``.
+"""Command line: ``cosimstep run | validate | info | plot | demo | models``.
 
 Exit codes: 0 success, 1 the run failed (a sub-model failed, a step could not be taken), 2 the
 configuration or the command line is wrong (every problem listed).
@@ -63,7 +63,7 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
         interpolation: str | None, controller: str | None, step: float | None,
         tol: float | None, seed: int | None, options: tuple[str, ...], out: str | None,
         as_json: bool) -> None:
-    """Co-simulate SYSTEM (a TOML system file).
+    """Co-simulate SYSTEM (a TOML system file or an SSP archive, .ssp).
 
     With --tol and no --controller the default adaptive controller runs.
     """
@@ -157,6 +157,21 @@ def validate(system: str) -> None:
     click.echo(f"{system}: ok — {len(spec.system.models)} models, "
                f"{len(spec.system.connections)} connections"
                + (", with monolithic reference" if spec.reference else ""))
+
+
+@main.command()
+@click.argument("fmu", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+def info(fmu: str, as_json: bool) -> None:
+    """Describe FMU: FMI version, kind, capabilities, default experiment, variables."""
+    from cosimstep.fmu.info import describe_fmu, format_info
+
+    try:
+        described = describe_fmu(fmu)
+    except ValueError as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(EXIT_CONFIG)
+    click.echo(json.dumps(described, indent=2) if as_json else format_info(described))
 
 
 @main.command()

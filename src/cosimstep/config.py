@@ -37,12 +37,16 @@ class _Section(BaseModel):
 
 
 class ModelSection(_Section):
-    type: str = Field(description="built-in type (see `cosimstep models`) or 'python'")
+    type: str = Field(description="built-in type (see `cosimstep models`), 'python' or 'fmu'")
     parameters: dict[str, Any] = {}  # numbers for built-in types; any TOML value for 'python'
     start: dict[str, float] = {}
     solver: dict[str, Any] | None = None
     class_: str | None = Field(None, alias="class",
                                description="for type = 'python': 'module:Class' or 'file.py:Class'")
+    path: str | None = Field(None, description="for type = 'fmu': the .fmu file, relative to "
+                             "the system file")
+    recipe: str | None = Field(None, description="for type = 'fmu': a built-in FMU built from "
+                               "the package's C sources on first use (cosimstep.fmu.build)")
 
 
 class ConnectionSection(_Section):
@@ -115,9 +119,16 @@ def _pydantic_problems(where: str, exc: ValidationError) -> list[Problem]:
 
 
 def load_system(path: str | Path, until: float | None = None) -> SystemSpec:
-    """Read and check a system file; raise :class:`ConfigurationError` with every problem."""
+    """Read and check a system file; raise :class:`ConfigurationError` with every problem.
+
+    A path ending in ``.ssp`` is read as an SSP archive (:func:`cosimstep.ssp.load_ssp`).
+    """
     path = Path(path)
     src = str(path)
+    if path.suffix.lower() == ".ssp":
+        from cosimstep.ssp import load_ssp
+
+        return load_ssp(path, until)
     if not path.exists():
         raise ConfigurationError([Problem(src, "file not found", "check the path")], src)
     try:
@@ -221,10 +232,16 @@ def _build_model(name: str, sec: ModelSection, header: HeaderSection,
                  problems: list[Problem], used: set[str]) -> SubModel | None:
     if sec.type == "python":
         return _python_model(sec, base_dir, where, problems)
+    if sec.type == "fmu":
+        return _fmu_model(name, sec, header, base_dir, where, problems, used)
+    for key, given in (("path", sec.path), ("recipe", sec.recipe)):
+        if given is not None:
+            problems.append(Problem(f"{where}.{key}", f"only used by type 'fmu', not "
+                                    f"'{sec.type}'", "remove it or write type = 'fmu'"))
     kind = REGISTRY.get(sec.type)
     if kind is None:
         problems.append(Problem(f"{where}.type", f"unknown model type '{sec.type}'",
-                                f"use 'python' or one of: {', '.join(sorted(REGISTRY))}"))
+                                f"use 'python', 'fmu' or one of: {', '.join(sorted(REGISTRY))}"))
         return None
     bad = [k for k in sec.parameters if k not in kind.parameters]
     for k in bad:
@@ -258,6 +275,24 @@ def _build_model(name: str, sec: ModelSection, header: HeaderSection,
                                 "{method = 'RK45', rtol = .., atol = ..}"))
         return None
     return kind.build(ParameterSchedule(params, own_changes), start, solver)
+
+
+def _fmu_model(name: str, sec: ModelSection, header: HeaderSection, base_dir: Path, where: str,
+               problems: list[Problem], used: set[str]) -> SubModel | None:
+    # Imported here: FMPy is only loaded when a system actually holds an FMU.
+    from cosimstep.fmu.resolve import fmu_submodel, resolve_fmu
+
+    for key, given in (("class", sec.class_), ("solver", sec.solver)):
+        if given is not None:
+            problems.append(Problem(f"{where}.{key}", "not used by type 'fmu'",
+                                    "remove it (an FMU brings its own solver)"))
+    fmu = resolve_fmu(sec.path, sec.recipe, base_dir, where, problems)
+    if fmu is None:
+        return None
+    overrides = {f"parameters.{k}": v for k, v in sec.parameters.items()}
+    overrides.update({f"start.{k}": v for k, v in sec.start.items()})
+    return fmu_submodel(name, fmu, overrides, where, problems, shared=header.parameters,
+                        used=used)
 
 
 def _python_model(sec: ModelSection, base_dir: Path, where: str,

@@ -1,0 +1,121 @@
+"""What an FMU is, read from its ``modelDescription.xml`` (``cosimstep info MODEL.fmu``).
+
+Unlike :func:`cosimstep.adapters.fmu.check_fmu`, any FMI version and kind is described, so a
+user learns why an FMU cannot be co-simulated (model exchange only, FMI 3.0, another platform)
+instead of only that it cannot. Nothing is unpacked.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+from typing import Any
+
+CAPABILITIES = ("canGetAndSetFMUstate", "canSerializeFMUstate", "canInterpolateInputs",
+                "maxOutputDerivativeOrder", "canHandleVariableCommunicationStepSize",
+                "providesDirectionalDerivative")
+# FMI 3.0 spells the state capabilities with a capital S.
+_FMI3_SPELLING = {"canGetAndSetFMUstate": "canGetAndSetFMUState",
+                  "canSerializeFMUstate": "canSerializeFMUState"}
+
+
+def describe_fmu(path: str | Path) -> dict[str, Any]:
+    """A JSON-ready description of an FMU; ``ValueError`` saying why a file is not one."""
+    import fmpy
+
+    from cosimstep.adapters.fmu import _escapes
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such file")
+    if not zipfile.is_zipfile(path):
+        raise ValueError(f"{path}: not a zip archive (an FMU is a zip file)")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = zf.namelist()
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{path}: corrupt zip archive ({exc})") from exc
+    unsafe = [n for n in names if _escapes(n)]
+    if unsafe:
+        raise ValueError(f"{path}: archive entries would unpack outside the FMU's folder: "
+                         f"{', '.join(unsafe)}")
+    if "modelDescription.xml" not in names:
+        raise ValueError(f"{path}: no modelDescription.xml at the top of the archive")
+    try:
+        md = fmpy.read_model_description(str(path), validate=False)
+    except Exception as exc:  # FMPy raises plain Exceptions for invalid descriptions
+        raise ValueError(f"{path}: invalid modelDescription.xml: {exc}") from exc
+
+    kinds = {}
+    for kind, part in (("CS", md.coSimulation), ("ME", md.modelExchange)):
+        if part is not None:
+            caps = {}
+            for cap in CAPABILITIES:
+                value = getattr(part, cap, None)
+                if value is None and cap in _FMI3_SPELLING:
+                    value = getattr(part, _FMI3_SPELLING[cap], None)
+                caps[cap] = value
+            kinds[kind] = {"modelIdentifier": part.modelIdentifier, "capabilities": caps}
+    binaries = sorted({n.split("/")[1] for n in names
+                       if n.startswith("binaries/") and n.count("/") >= 2 and n.split("/")[1]})
+    experiment = None
+    if md.defaultExperiment is not None:
+        de = md.defaultExperiment
+        experiment = {k: _number(getattr(de, k, None))
+                      for k in ("startTime", "stopTime", "tolerance", "stepSize")}
+    variables = []
+    for v in md.modelVariables:
+        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None)
+        variables.append({"name": v.name, "causality": v.causality,
+                          "variability": v.variability, "type": v.type,
+                          "start": _number(v.start), "unit": unit or "",
+                          "description": v.description or ""})
+    return {
+        "file": str(path), "fmiVersion": md.fmiVersion, "kind": sorted(kinds),
+        "modelName": md.modelName, "modelIdentifier": {k: p["modelIdentifier"]
+                                                       for k, p in kinds.items()},
+        "guid": md.guid, "description": md.description or "",
+        "generationTool": md.generationTool or "", "platforms": binaries,
+        "capabilities": {k: p["capabilities"] for k, p in kinds.items()},
+        "defaultExperiment": experiment, "variables": variables,
+    }
+
+
+def _number(value: Any) -> Any:
+    if value is None or isinstance(value, bool | int | float):
+        return value
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return str(value)
+
+
+def format_info(info: dict[str, Any]) -> str:
+    """The description as a human-readable report with a table of variables."""
+    lines = [f"{info['file']}",
+             f"  FMI version      {info['fmiVersion']}",
+             f"  kind             {' + '.join(info['kind']) or 'none'}",
+             f"  model name       {info['modelName']}",
+             "  identifier       " + ", ".join(f"{v} ({k})"
+                                               for k, v in info["modelIdentifier"].items()),
+             f"  generation tool  {info['generationTool'] or '-'}",
+             f"  platforms        {', '.join(info['platforms']) or 'none (source only?)'}"]
+    if info["description"]:
+        lines.append(f"  description      {info['description']}")
+    for kind, caps in info["capabilities"].items():
+        lines.append(f"  capabilities ({kind})")
+        lines += [f"    {k:40s} {v}" for k, v in caps.items() if v is not None]
+    de = info["defaultExperiment"]
+    if de:
+        lines.append("  default experiment  " + ", ".join(f"{k} = {v}" for k, v in de.items()
+                                                          if v is not None))
+    rows = [("name", "causality", "variability", "type", "start", "unit")]
+    rows += [(v["name"], v["causality"] or "", v["variability"] or "", v["type"],
+              "" if v["start"] is None else f"{v['start']:g}"
+              if isinstance(v["start"], float) else str(v["start"]), v["unit"])
+             for v in info["variables"]]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines.append(f"  variables ({len(info['variables'])})")
+    for r in rows:
+        lines.append("    " + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
+    return "\n".join(lines)

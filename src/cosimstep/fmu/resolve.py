@@ -1,0 +1,118 @@
+"""FMUs named by system files: find or build the archive, check overrides, create the sub-model.
+
+Both system formats go through here — a TOML ``[models.<name>]`` section with ``type = "fmu"``
+and an SSP component — so an FMU is refused, and its overrides are checked, the same way in
+both. Every problem is appended to the caller's list as a :class:`~cosimstep.errors.Problem`
+(where, what, fix) instead of being raised, so one bad FMU does not hide the others.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from cosimstep.errors import Problem
+from cosimstep.submodel import SubModel
+
+RECIPE_SCHEME = "cosimstep:recipe:"  # an SSP component source naming a built-in FMU
+_SETTABLE_CAUSALITY = ("parameter", "input", "output")
+
+
+def build_recipe(recipe: str, where: str, problems: list[Problem]) -> Path | None:
+    """Build a built-in FMU (or reuse the cached build); ``None`` after recording a problem."""
+    from cosimstep.fmu.build import RECIPES, FmuBuildError, build_fmu
+
+    if recipe not in RECIPES:
+        problems.append(Problem(where, f"unknown built-in FMU recipe '{recipe}'",
+                                f"use one of: {', '.join(sorted(RECIPES))}"))
+        return None
+    try:
+        return build_fmu(recipe)
+    except (FmuBuildError, OSError) as exc:
+        problems.append(Problem(where, f"cannot build the FMU '{recipe}': {exc}",
+                                "install gcc, or give the path of a built .fmu instead"))
+        return None
+
+
+def resolve_fmu(path: str | None, recipe: str | None, base_dir: Path, where: str,
+                problems: list[Problem]) -> Path | None:
+    """The ``.fmu`` of a TOML model section: ``path`` (relative to the file) or ``recipe``."""
+    if (path is None) == (recipe is None):
+        problems.append(Problem(where, "type 'fmu' needs exactly one of `path` and `recipe`",
+                                "write path = 'model.fmu' (relative to this file) or "
+                                "recipe = 'pendulum_bar1'"))
+        return None
+    if recipe is not None:
+        return build_recipe(recipe, f"{where}.recipe", problems)
+    assert path is not None
+    file = (base_dir / path).resolve()
+    if not file.is_file():
+        problems.append(Problem(f"{where}.path", f"no such file: {file}",
+                                "give the .fmu path relative to the system file"))
+        return None
+    return file
+
+
+def fmu_submodel(name: str, fmu: Path, overrides: Mapping[str, Any], where: str,
+                 problems: list[Problem], *, shared: Mapping[str, float] | None = None,
+                 used: set[str] | None = None) -> SubModel | None:
+    """Create an :class:`~cosimstep.adapters.fmu.FmuSubModel` with checked overrides.
+
+    Parameters
+    ----------
+    overrides:
+        ``{"<key>.<variable>": value}`` where ``<key>`` is ``parameters`` or ``start`` (how the
+        value was written, for messages); ``parameters`` must name FMU parameters, ``start`` may
+        name any variable whose start value can be set.
+    shared:
+        A system's shared parameters: each one whose name is an FMU parameter is applied (and
+        added to ``used``) unless an override names it too.
+    """
+    from cosimstep.adapters.fmu import FmuSubModel, check_fmu
+
+    try:
+        md = check_fmu(fmu)
+    except ValueError as exc:
+        problems.append(Problem(where, str(exc), "use an FMI 2.0 co-simulation FMU built for "
+                                "this platform (`cosimstep info FILE.fmu` shows what it is)"))
+        return None
+    by_name = {v.name: v for v in md.modelVariables}
+    params = sorted(n for n, v in by_name.items() if v.causality == "parameter")
+    settable = sorted(n for n, v in by_name.items() if v.causality in _SETTABLE_CAUSALITY
+                      and v.variability != "constant")
+    values: dict[str, Any] = {}
+    for k, v in (shared or {}).items():
+        if k in by_name and by_name[k].causality == "parameter":
+            values[k] = v
+            if used is not None:
+                used.add(k)
+    ok = True
+    for key, value in overrides.items():
+        kind, _, var = key.partition(".")
+        v = by_name.get(var)
+        if v is None:
+            known, label = ((params, "parameters") if kind == "parameters"
+                            else (settable, "settable variables"))
+            problems.append(Problem(f"{where}.{key}", f"FMU '{md.modelName}' has no variable "
+                                    f"'{var}'", f"its {label}: {', '.join(known) or 'none'}"))
+            ok = False
+        elif kind == "parameters" and v.causality != "parameter":
+            problems.append(Problem(f"{where}.{key}", f"'{var}' has causality {v.causality}, not "
+                                    "parameter", "set its start value under `start` instead"))
+            ok = False
+        elif isinstance(value, str) or (isinstance(value, float) and not math.isfinite(value)):
+            problems.append(Problem(f"{where}.{key}", f"must be a finite number, got {value!r}",
+                                    "write a number"))
+            ok = False
+        else:
+            values[var] = value
+    if not ok:
+        return None
+    try:
+        return FmuSubModel(fmu, values, instance_name=name)
+    except ValueError as exc:
+        problems.append(Problem(where, str(exc), "set only parameters and start values the "
+                                "FMU allows to be set"))
+        return None

@@ -1,0 +1,216 @@
+"""SSP archives: the packaged double pendulum example (one FMU per bar, built from the repo's
+C sources on first use) through the CLI, linear transformations and unit conversion on a small
+hand-written two-bar SSD, and refusals of bad archives (exit 2, every problem listed)."""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import cosimstep
+from cosimstep.cli import main
+
+TOLERANCE = 1e-9
+MASTER = cosimstep.MasterOptions("gauss-seidel", 2)
+
+
+def test_example_ssp_runs_from_the_cli(examples: Path, tmp_path: Path) -> None:
+    ssp = examples / "fmu" / "double_pendulum.ssp"
+    res = CliRunner().invoke(main, ["run", str(ssp), "--until", "1", "--json",
+                                    "--out", str(tmp_path / "ssp.db")])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.output)
+    assert out["status"] == "ok" and out["t_end"] == 1.0
+    assert out["calls"] == {"bar1": 1000, "bar2": 1000}  # the annotation's fixed step 0.001
+    assert set(out["error"]["per_variable"]) == {"bar1.theta", "bar1.omega", "bar2.theta",
+                                                 "bar2.omega"}
+    assert 0 < out["error"]["max_abs"] < 1e-6
+
+
+def test_example_ssp_matches_python_pendulum(examples: Path) -> None:
+    spec = cosimstep.load_system(examples / "fmu" / "double_pendulum.ssp")
+    assert spec.until == 10.0 and spec.controller == {"name": "fixed", "step": 0.001}
+    assert spec.master.name == "gauss-seidel" and spec.master.extrapolation == 2
+    py = cosimstep.load_system(examples / "double_pendulum_slow.toml")
+    a = cosimstep.simulate(spec.system, 2.0, cosimstep.Fixed(0.001), MASTER,
+                           reference=spec.reference)
+    b = cosimstep.simulate(py.system, 2.0, cosimstep.Fixed(0.001), MASTER,
+                           reference=py.reference)
+    assert a.success and b.success and a.names == b.names
+    assert np.max(np.abs(a.values - b.values)) <= TOLERANCE
+    assert a.error.per_variable == pytest.approx(b.error.per_variable, rel=1e-6)
+
+
+# -- a small hand-written SSD ------------------------------------------------------------------
+
+HEAD = """<?xml version="1.0" encoding="UTF-8"?>
+<ssd:SystemStructureDescription version="1.0" name="two_bars"
+    xmlns:ssd="http://ssp-standard.org/SSP1/SystemStructureDescription"
+    xmlns:ssc="http://ssp-standard.org/SSP1/SystemStructureCommon"
+    xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues"
+    xmlns:cosimstep="urn:cosimstep:ssp:1">
+<ssd:System name="two_bars"><ssd:Elements>
+"""
+
+
+def component(name: str, source: str, start: dict[str, float], extra: str = "") -> str:
+    params = "".join(f'<ssv:Parameter name="{k}"><ssv:Real value="{v}"/></ssv:Parameter>'
+                     for k, v in start.items())
+    return (f'<ssd:Component name="{name}" source="{source}">{extra}<ssd:ParameterBindings>'
+            f'<ssd:ParameterBinding><ssd:ParameterValues><ssv:ParameterSet version="1.0" '
+            f'name="s"><ssv:Parameters>{params}</ssv:Parameters></ssv:ParameterSet>'
+            '</ssd:ParameterValues></ssd:ParameterBinding>'
+            '<ssd:ParameterBinding source="resources/lengths.ssv"/>'
+            '</ssd:ParameterBindings></ssd:Component>')
+
+
+def connection(a: str, b: str, lt: str = "") -> str:
+    (e1, c1), (e2, c2) = a.split("."), b.split(".")
+    return (f'<ssd:Connection startElement="{e1}" startConnector="{c1}" endElement="{e2}" '
+            f'endConnector="{c2}">{lt}</ssd:Connection>')
+
+
+LENGTHS = """<ssv:ParameterSet version="1.0" name="lengths"
+    xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues"><ssv:Parameters>
+<ssv:Parameter name="l1"><ssv:Real value="100" unit="cm"/></ssv:Parameter>
+<ssv:Parameter name="l2"><ssv:Real value="1000" unit="mm"/></ssv:Parameter>
+</ssv:Parameters></ssv:ParameterSet>"""
+
+
+def with_unit(fmu: Path, out: Path, variable: str, unit: str) -> Path:
+    """A copy of an FMU whose model description declares another unit for one variable."""
+    with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(out, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "modelDescription.xml":
+                text = data.decode()
+                at = text.index(f'name="{variable}"')
+                end = text.index("</ScalarVariable>", at)
+                text = text[:at] + text[at:end].replace('unit="rad"', f'unit="{unit}"') \
+                    + text[end:]
+                text = text.replace("<UnitDefinitions>",
+                                    '<UnitDefinitions><Unit name="deg"><BaseUnit rad="1" '
+                                    'factor="0.017453292519943295"/></Unit>')
+                data = text.encode()
+            dst.writestr(item, data)
+    return out
+
+
+def write_ssp(path: Path, body: str, files: dict[str, Path | str]) -> Path:
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("SystemStructure.ssd", body)
+        for name, content in files.items():
+            if isinstance(content, Path):
+                zf.write(content, name)
+            else:
+                zf.writestr(name, content)
+    return path
+
+
+START1 = {"theta": 0.4, "omega": 0.0, "theta2": -0.3, "omega2": 0.0}
+START2 = {"theta": -0.3, "omega": 0.0, "theta1": 0.4, "omega1": 0.0}
+
+
+def two_bars(tmp_path: Path, bar_fmus: dict[int, Path], theta_link: str,
+             extra2: str = "") -> Path:
+    """bar2's FMU declares its input theta1 in degrees (its C code still reads radians)."""
+    deg = with_unit(bar_fmus[2], tmp_path / "bar2deg.fmu", "theta1", "deg")
+    body = (HEAD + component("bar1", "resources/bar1.fmu", START1)
+            + component("bar2", "resources/bar2.fmu", START2, extra2)
+            + "</ssd:Elements><ssd:Connections>" + theta_link
+            + connection("bar1.omega", "bar2.omega1") + connection("bar2.theta", "bar1.theta2")
+            + connection("bar2.omega", "bar1.omega2")
+            + "</ssd:Connections></ssd:System></ssd:SystemStructureDescription>")
+    return write_ssp(tmp_path / "two_bars.ssp", body,
+                     {"resources/bar1.fmu": bar_fmus[1], "resources/bar2.fmu": deg,
+                      "resources/lengths.ssv": LENGTHS})
+
+
+def test_unit_conversion_and_linear_transformation(tmp_path: Path, bar_fmus: dict[int, Path],
+                                                   examples: Path) -> None:
+    # rad -> deg by unit conversion, then factor pi/180 back: bar2 reads radians again, so the
+    # system is the plain split pendulum (lengths 100 cm and 1000 mm bound in other units).
+    lt = f'<ssc:LinearTransformation factor="{math.pi / 180!r}" offset="0"/>'
+    spec = cosimstep.load_system(two_bars(tmp_path, bar_fmus,
+                                          connection("bar1.theta", "bar2.theta1", lt)))
+    link = spec.system.connections[0]
+    assert (link.source, link.target) == ("bar1.theta", "bar2.theta1")
+    assert link.gain == pytest.approx(math.pi / 180, rel=1e-15) and link.offset == 0.0
+    compiled = spec.system.compile()
+    k = compiled.names.index("bar2")
+    assert compiled.a[k][0] == pytest.approx(1.0, abs=1e-15)  # conversion x transformation
+    assert {n: v for n, (_, v) in spec.system.models["bar1"].start.items()}["l1"] == 1.0
+    assert {n: v for n, (_, v) in spec.system.models["bar2"].start.items()}["l2"] == 1.0
+    py = cosimstep.load_system(examples / "double_pendulum_slow.toml")
+    a = cosimstep.simulate(spec.system, 1.0, cosimstep.Fixed(0.001), MASTER)
+    b = cosimstep.simulate(py.system, 1.0, cosimstep.Fixed(0.001), MASTER)
+    assert a.success and np.max(np.abs(a.values - b.values)) <= TOLERANCE
+
+    # A transformation alone: target = factor * converted + offset, in the target's unit.
+    lt = '<ssc:LinearTransformation factor="2" offset="0.5"/>'
+    spec = cosimstep.load_system(two_bars(tmp_path, bar_fmus,
+                                          connection("bar1.theta", "bar2.theta1", lt)))
+    compiled = spec.system.compile()
+    k = compiled.names.index("bar2")
+    assert compiled.a[k][0] == pytest.approx(2 * 180 / math.pi, rel=1e-14)
+    assert compiled.b[k][0] == pytest.approx(0.5, rel=1e-14)
+
+    # suppressUnitConversion: the number passes unconverted, then the transformation.
+    link = connection("bar1.theta", "bar2.theta1", lt).replace(
+        "<ssd:Connection ", '<ssd:Connection suppressUnitConversion="true" ')
+    compiled = cosimstep.load_system(two_bars(tmp_path, bar_fmus, link)).system.compile()
+    assert compiled.a[k][0] == pytest.approx(2.0, rel=1e-14)
+
+
+# -- refusals --------------------------------------------------------------------------------
+
+def run_exit(path: Path) -> tuple[int, str]:
+    res = CliRunner().invoke(main, ["run", str(path), "--json", "--out", str(path) + ".db"])
+    return res.exit_code, res.output
+
+
+def test_archive_without_ssd(tmp_path: Path) -> None:
+    ssp = write_ssp(tmp_path / "x.ssp", "", {})
+    with zipfile.ZipFile(ssp, "w") as zf:
+        zf.writestr("resources/readme.txt", "no structure")
+    code, out = run_exit(ssp)
+    assert code == 2 and "no SystemStructure.ssd at the top of the archive" in out
+
+
+def test_traversal_members_refused_before_unpacking(tmp_path: Path) -> None:
+    ssp = tmp_path / "evil.ssp"
+    with zipfile.ZipFile(ssp, "w") as zf:
+        zf.writestr("SystemStructure.ssd", HEAD)
+        zf.writestr("../evil.txt", "outside")
+        zf.writestr("/abs.txt", "absolute")
+    code, out = run_exit(ssp)
+    assert code == 2 and "2 problem(s)" in out
+    assert "../evil.txt: archive member would unpack outside" in out and "/abs.txt" in out
+    assert not (tmp_path.parent / "evil.txt").exists()
+
+
+def test_every_structure_problem_listed(tmp_path: Path, bar_fmus: dict[int, Path]) -> None:
+    bad = (connection("bar1.theta", "bar2.thetaX") + connection("bar1.theta", "bar3.theta1"))
+    ssp = two_bars(tmp_path, bar_fmus, bad)
+    body = zipfile.ZipFile(ssp).read("SystemStructure.ssd").decode().replace(
+        '<ssd:Component name="bar2" source="resources/bar2.fmu">',
+        '<ssd:Component name="bar2" source="resources/bar2.fmu"><ssd:Connectors>'
+        '<ssd:Connector name="theta1" kind="input"/><ssd:Connector name="theta" kind="output"/>'
+        '<ssd:Connector name="omega" kind="output"/><ssd:Connector name="omega1" kind="input"/>'
+        '<ssd:Connector name="nope" kind="input"/></ssd:Connectors>').replace(
+        "resources/bar1.fmu", "resources/missing.fmu")
+    broken = write_ssp(tmp_path / "broken.ssp", body, {
+        "resources/bar2.fmu": tmp_path / "bar2deg.fmu", "resources/lengths.ssv": LENGTHS})
+    code, out = run_exit(broken)
+    assert code == 2, out
+    for expected in ("component bar1.source: 'resources/missing.fmu' is not in the archive",
+                     "connector nope: no FMU variable of this name",
+                     "'bar2' has no connector 'thetaX'",
+                     "endElement 'bar3' is not a component"):
+        assert expected in out, out
