@@ -213,6 +213,47 @@ def demo(out: str) -> None:
     sys.exit(0 if result.success else EXIT_FAILED)
 
 
+@main.command()
+@click.argument("kind")
+@click.option("-o", "--output", required=True, type=click.Path(),
+              help="The .fmu file to write (or a folder).")
+@click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
+              help="Parameter value, repeatable, e.g. --param l1=0.5.")
+@click.option("--start", "starts", multiple=True, metavar="NAME=VALUE",
+              help="Start value, repeatable, e.g. --start theta1=0.4.")
+def export(kind: str, output: str, params: tuple[str, ...], starts: tuple[str, ...]) -> None:
+    """Export the built-in sub-model KIND (see `cosimstep models`) as an FMI 2.0 CS FMU.
+
+    Needs pythonfmu (pip install "cosimstep[export]"); the FMU runs in a Python that can import
+    cosimstep.
+    """
+    try:
+        from cosimstep.fmu.export import export_fmu
+    except ImportError as exc:
+        click.echo(f"error: {exc}; install the extra: pip install 'cosimstep[export]'", err=True)
+        sys.exit(EXIT_CONFIG)
+
+    def numbers(pairs: tuple[str, ...], what: str) -> dict[str, float]:
+        out = {}
+        for pair in pairs:
+            key, sep, value = pair.partition("=")
+            try:
+                out[key.strip()] = float(value)
+            except ValueError:
+                sep = ""
+            if not sep:
+                click.echo(f"error: --{what} {pair!r} is not NAME=NUMBER", err=True)
+                sys.exit(EXIT_CONFIG)
+        return out
+
+    try:
+        path = export_fmu(kind, output, numbers(params, "param"), numbers(starts, "start"))
+    except ValueError as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(EXIT_CONFIG)
+    click.echo(f"wrote {path}")
+
+
 @main.command("models")
 def list_models() -> None:
     """List the built-in sub-model types."""

@@ -145,3 +145,21 @@ def test_controller_options_from_the_command_line(examples, tmp_path):
     assert json.loads(res.output)["h_max"] <= 0.01
     bad = CliRunner().invoke(main, [*base, "--opt", "mode=everything"])
     assert bad.exit_code == 2 and "`mode` must be one of" in bad.output
+
+
+def test_export_command_writes_an_fmu_and_refuses_bad_input(tmp_path):
+    pytest.importorskip("pythonfmu")
+    out = tmp_path / "bar1.fmu"
+    res = CliRunner().invoke(main, ["export", "double_pendulum.bar1", "-o", str(out),
+                                    "--param", "l1=0.5", "--start", "theta1=0.25"])
+    assert res.exit_code == 0, res.output
+    info = CliRunner().invoke(main, ["info", str(out), "--json"])
+    assert info.exit_code == 0
+    described = json.loads(info.output)
+    names = {v["name"] for v in described["variables"]}
+    assert {"theta", "omega", "theta2", "omega2", "l1"} <= names
+    bad = CliRunner().invoke(main, ["export", "no_such_model", "-o", str(tmp_path / "x.fmu")])
+    assert bad.exit_code == 2 and "known kinds" in bad.output
+    bad = CliRunner().invoke(main, ["export", "double_pendulum.bar1", "-o", str(out),
+                                    "--param", "l1=long"])
+    assert bad.exit_code == 2 and "NAME=NUMBER" in bad.output
