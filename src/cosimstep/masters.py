@@ -133,8 +133,11 @@ class Master:
         self._dy0: np.ndarray | None = None
         self.predicted = self._predicted_columns()
         self.consumed = np.zeros(system.n_outputs, dtype=bool)  # outputs some model reads
-        for src in system.src:
+        self.held = np.zeros(system.n_outputs, dtype=bool)  # read by a hold-only receiver
+        for k, src in enumerate(system.src):
             self.consumed[np.asarray(src, dtype=int)] = True
+            if self._deriv_order[k] == 0:
+                self.held[np.asarray(src, dtype=int)] = True
         self.assumed = np.zeros(system.n_outputs)
         self.last = np.zeros(system.n_outputs)
 

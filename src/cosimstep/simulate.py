@@ -125,6 +125,7 @@ class _Context:
         self.names = master.system.output_names
         self.predicted = master.predicted
         self.consumed = master.consumed
+        self.held = master.held
         self._segment = 0  # index of the first point after the last time event
 
     def push(self, t: float, y: np.ndarray) -> None:

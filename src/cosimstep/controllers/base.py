@@ -42,6 +42,7 @@ class StepContext(Protocol):
     names: list[str]  # exchanged outputs, the columns of ``history``
     predicted: np.ndarray  # outputs some receiver uses extrapolated (not yet computed)
     consumed: np.ndarray  # outputs some sub-model reads as an input
+    held: np.ndarray  # outputs some receiver holds constant over a step (no input derivatives)
 
     def step(self, t: float, h: float, *, order: int | None = None,
              end: np.ndarray | None = None,
