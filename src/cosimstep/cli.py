@@ -127,6 +127,14 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
             [Problem("controller", f"the multirate master needs an error-controlled controller; "
                      f"'{ctrl.name}' has no tolerance", "give --tol TOL (or --controller pc)")],
             spec.source))
+    unable = [n for n, m in spec.system.models.items() if not m.capabilities.can_save_state]
+    if unable and (ctrl.needs_rollback or opts.name == "multirate"):
+        what = f"controller '{ctrl.name}'" if ctrl.needs_rollback else "the multirate master"
+        _config_exit(ConfigurationError(
+            [Problem("controller", f"{what} rejects and re-runs steps, but "
+                     f"{', '.join(unable)} cannot save and restore its state",
+                     "use a fixed step (--controller fixed --step H) with the gauss-seidel or "
+                     "jacobi master")], spec.source))
     store = out or f"{spec.name}.db"
     return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=store,
                     name=spec.name, config={"source": spec.source, "system": spec.raw},

@@ -163,3 +163,20 @@ def test_export_command_writes_an_fmu_and_refuses_bad_input(tmp_path):
     bad = CliRunner().invoke(main, ["export", "double_pendulum.bar1", "-o", str(out),
                                     "--param", "l1=long"])
     assert bad.exit_code == 2 and "NAME=NUMBER" in bad.output
+
+
+def test_rollback_without_state_saving_is_a_configuration_error(tmp_path):
+    # Clock cannot save its state (like an FMU without canGetAndSetFMUstate)
+    (tmp_path / "models.py").write_text(
+        "import sys\n"
+        f"sys.path.insert(0, {str(__import__('pathlib').Path(__file__).parents[1])!r})\n"
+        "from helpers import Clock, Integrator\n")
+    (tmp_path / "s.toml").write_text(
+        'until = 1.0\n[models.clock]\ntype = "python"\nclass = "models.py:Clock"\n'
+        '[models.sink]\ntype = "python"\nclass = "models.py:Integrator"\n'
+        'parameters = { unit = "s" }\n[[connections]]\nfrom = "clock.time"\nto = "sink.u"\n')
+    for extra in (["--tol", "1e-4"], ["--master", "multirate", "--tol", "1e-4"]):
+        res = CliRunner().invoke(main, ["run", str(tmp_path / "s.toml"), *extra])
+        assert res.exit_code == 2, res.output
+        assert "clock cannot save and restore its state" in res.output
+        assert "--controller fixed" in res.output
