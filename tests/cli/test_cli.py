@@ -78,11 +78,16 @@ def test_validate_accepts_every_example(examples):
         assert res.exit_code == 0, (path, res.output)
 
 
-def test_failed_run_exits_1(tmp_path):
-    (tmp_path / "models.py").write_text(
+def _helper_models(folder):
+    """A models.py a system file can name, re-exporting the test helpers' sub-models."""
+    (folder / "models.py").write_text(
         "import sys\n"
         f"sys.path.insert(0, {str(__import__('pathlib').Path(__file__).parents[1])!r})\n"
         "from helpers import Clock, Integrator\n")
+
+
+def test_failed_run_exits_1(tmp_path):
+    _helper_models(tmp_path)
     (tmp_path / "s.toml").write_text(
         'until = 1.0\n[models.clock]\ntype = "python"\nclass = "models.py:Clock"\n'
         'parameters = { fail_at = 0.3 }\n[models.sink]\ntype = "python"\n'
@@ -167,10 +172,7 @@ def test_export_command_writes_an_fmu_and_refuses_bad_input(tmp_path):
 
 def test_rollback_without_state_saving_is_a_configuration_error(tmp_path):
     # Clock cannot save its state (like an FMU without canGetAndSetFMUstate)
-    (tmp_path / "models.py").write_text(
-        "import sys\n"
-        f"sys.path.insert(0, {str(__import__('pathlib').Path(__file__).parents[1])!r})\n"
-        "from helpers import Clock, Integrator\n")
+    _helper_models(tmp_path)
     (tmp_path / "s.toml").write_text(
         'until = 1.0\n[models.clock]\ntype = "python"\nclass = "models.py:Clock"\n'
         '[models.sink]\ntype = "python"\nclass = "models.py:Integrator"\n'
