@@ -648,10 +648,10 @@ def _link_gain(link: Link, components: dict[str, Component], system: System,
     cu1, cu2 = cu1 or u1, cu2 or u2
     try:
         chain = _compose(
-            _fmu_to(u1, cu1, units),
+            _across(u1, cu1, u1, units),
             (1.0, 0.0) if link.suppress_units else _connector_conversion(cu1, cu2, units),
             (link.factor, link.offset),
-            _to_fmu(cu2, u2, units))
+            _across(cu2, u2, u2, units))
         direct = conversion(u1, u2)
     except UnitError as exc:
         problems.append(Problem(where, f"unit mismatch: {exc}",
@@ -662,19 +662,12 @@ def _link_gain(link: Link, components: dict[str, Component], system: System,
     return gain, chain[1] - gain * direct[1]
 
 
-def _fmu_to(fmu_unit: str, connector_unit: str, units: dict[str, SspUnit]) -> Affine:
-    """FMU unit -> connector unit; the same name means the same unit."""
-    if fmu_unit == connector_unit:
+def _across(source: str, target: str, fmu_unit: str, units: dict[str, SspUnit]) -> Affine:
+    """Between an FMU's unit and its connector's (either way); the same name is the same unit,
+    and an FMU unit the SSD defines converts by the SSD's definitions."""
+    if source == target:
         return 1.0, 0.0
     if fmu_unit in units:
-        return _connector_conversion(fmu_unit, connector_unit, units)
-    return conversion(fmu_unit, connector_unit)
-
-
-def _to_fmu(connector_unit: str, fmu_unit: str, units: dict[str, SspUnit]) -> Affine:
-    if fmu_unit == connector_unit:
-        return 1.0, 0.0
-    if fmu_unit in units:
-        return _connector_conversion(connector_unit, fmu_unit, units)
-    return conversion(connector_unit, fmu_unit)
+        return _connector_conversion(source, target, units)
+    return conversion(source, target)
 
