@@ -164,3 +164,19 @@ class Follower(SubModel):
 
     def restore_state(self, token: Any) -> None:
         self.x = token
+
+
+def fmu_pendulum(bar_fmus: dict, model_class: Any = None) -> Any:
+    """The slow split double pendulum made of the two C bar FMUs (theta1 = 0.4, theta2 = -0.3)."""
+    import cosimstep
+    from cosimstep.adapters.fmu import FmuSubModel
+
+    cls = model_class or FmuSubModel
+    system = cosimstep.System()
+    system.add("bar1", cls(bar_fmus[1], {"theta": 0.4, "omega": 0.0,
+                                         "theta2": -0.3, "omega2": 0.0}))
+    system.add("bar2", cls(bar_fmus[2], {"theta": -0.3, "omega": 0.0,
+                                         "theta1": 0.4, "omega1": 0.0}))
+    system.connect("bar1.theta", "bar2.theta1").connect("bar1.omega", "bar2.omega1")
+    system.connect("bar2.theta", "bar1.theta2").connect("bar2.omega", "bar1.omega2")
+    return system

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import cosimstep
+import helpers
 from cosimstep.adapters.fmu import FmuSubModel
 from cosimstep.controllers import make_controller
 
@@ -28,14 +29,7 @@ class CountingFmu(FmuSubModel):
 
 
 def fmu_pendulum(bar_fmus: dict[int, Path]) -> cosimstep.System:
-    system = cosimstep.System()
-    system.add("bar1", CountingFmu(bar_fmus[1], {"theta": 0.4, "omega": 0.0,
-                                                 "theta2": -0.3, "omega2": 0.0}))
-    system.add("bar2", CountingFmu(bar_fmus[2], {"theta": -0.3, "omega": 0.0,
-                                                 "theta1": 0.4, "omega1": 0.0}))
-    system.connect("bar1.theta", "bar2.theta1").connect("bar1.omega", "bar2.omega1")
-    system.connect("bar2.theta", "bar1.theta2").connect("bar2.omega", "bar1.omega2")
-    return system
+    return helpers.fmu_pendulum(bar_fmus, CountingFmu)
 
 
 @pytest.mark.parametrize("controller", ["fixed 0.001", "pc tol 1e-4"])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import cosimstep
-from cosimstep.adapters.fmu import FmuSubModel
+from helpers import fmu_pendulum
 
 libcosim_execution = pytest.importorskip("libcosimpy.CosimExecution")
 libcosim_slave = pytest.importorskip("libcosimpy.CosimSlave")
@@ -48,13 +48,7 @@ def libcosim_values(bar_fmus: dict[int, Path]) -> np.ndarray:
 
 
 def test_jacobi_hold_matches_libcosim(bar_fmus: dict[int, Path]) -> None:
-    system = cosimstep.System()
-    system.add("bar1", FmuSubModel(bar_fmus[1], {"theta": 0.4, "omega": 0.0,
-                                                 "theta2": -0.3, "omega2": 0.0}))
-    system.add("bar2", FmuSubModel(bar_fmus[2], {"theta": -0.3, "omega": 0.0,
-                                                 "theta1": 0.4, "omega1": 0.0}))
-    system.connect("bar1.theta", "bar2.theta1").connect("bar1.omega", "bar2.omega1")
-    system.connect("bar2.theta", "bar1.theta2").connect("bar2.omega", "bar1.omega2")
+    system = fmu_pendulum(bar_fmus)
     ours = cosimstep.simulate(system, UNTIL, cosimstep.Fixed(H),
                               cosimstep.MasterOptions("jacobi", 0))
     assert ours.success, ours.message
