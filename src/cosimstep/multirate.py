@@ -38,6 +38,7 @@ import numpy as np
 from cosimstep.controllers.base import StepPolicy
 from cosimstep.errors import SubModelError
 from cosimstep.extrapolation import evaluate, taylor_coefficients
+from cosimstep.masters import Master, MasterOptions
 from cosimstep.system import CompiledSystem
 
 NODES = np.array([0.0, 1 / 3, 2 / 3, 1.0])  # where inputs are sampled over a step (a cubic)
@@ -99,10 +100,13 @@ class Multirate:
     interpolation:
         ``None`` for the built-in local cubic (fast), or a method of
         :mod:`cosimstep.interpolation` by name for the partners' trajectories.
+    call_timeout:
+        Seconds one sub-model call may take before the run ends as failed.
     """
 
     def __init__(self, system: CompiledSystem, policy: StepPolicy, h0: float,
-                 order: int = 2, interpolation: str | None = None) -> None:
+                 order: int = 2, interpolation: str | None = None,
+                 call_timeout: float | None = None) -> None:
         problems = [f"'{n}' cannot save/restore its state"
                     for n, m in zip(system.names, system.models)
                     if not m.capabilities.can_save_state]
@@ -117,6 +121,7 @@ class Multirate:
                              + "; ".join(problems) + " — use the gauss-seidel or jacobi master")
         self.system = system
         self.order = order
+        self._caller = Master(system, MasterOptions("multirate", order, call_timeout=call_timeout))
         self.method = None
         if interpolation is not None:
             from cosimstep.interpolation import make_interpolator
@@ -194,13 +199,8 @@ class Multirate:
 
     # -- calls -----------------------------------------------------------------------------------
     def _guard(self, k: int, t: float, fn: Any, *args: Any, h: float | None = None) -> Any:
-        try:
-            return fn(*args)
-        except SubModelError:
-            raise
-        except Exception as exc:
-            raise SubModelError(self.system.names[k], t, f"{type(exc).__name__}: {exc}",
-                                h) from exc
+        """A sub-model call through the synchronous master's guard (errors named, time-outs)."""
+        return self._caller._guard(k, t, fn, *args, h=h)
 
     def run_step(self, k: int, t: float, h: float, inputs: np.ndarray) -> np.ndarray:
         """One call: model ``k`` over ``[t, t + h]`` following the cubic through ``inputs``."""
@@ -218,12 +218,8 @@ class Multirate:
         if q > 0:
             self._guard(k, t, model.set_input_derivatives, coef[1:q + 1], h=h)
         self._guard(k, t, model.do_step, t, h, h=h)
-        y = np.asarray(self._guard(k, t, model.get_outputs, h=h), dtype=float)
+        y = self._caller._outputs(k, t, h)  # one float per declared output, or an error
         tr.time_in_model += time.perf_counter() - start
-        n = len(model.outputs)
-        if y.shape != (n,):
-            raise SubModelError(tr.name, t, f"get_outputs returned {y!r}; expected {n} float(s)",
-                                h)
         if not np.all(np.isfinite(y)):
             bad = [model.outputs[i].name for i in np.flatnonzero(~np.isfinite(y))]
             raise SubModelError(tr.name, t, f"returned non-finite output(s) {', '.join(bad)}", h)
@@ -369,8 +365,8 @@ class Multirate:
         system = self.system
         for k, m in enumerate(system.models):
             self._guard(k, t0, m.initialize, t0)
-        y0 = np.concatenate([np.asarray(self._guard(k, t0, m.get_outputs), dtype=float)
-                             for k, m in enumerate(system.models)])
+        y0 = np.concatenate([self._caller._outputs(k, t0, None)
+                             for k in range(len(system.models))])
         for k, (m, tr) in enumerate(zip(system.models, self.tracks)):
             self._guard(k, t0, m.set_inputs, system.a[k] * y0[system.src[k]] + system.b[k])
             tr.times, tr.rows = [t0], [y0[system.output_slices[k]]]

@@ -358,7 +358,8 @@ def _simulate_multirate(compiled: Any, until: float, controller: Controller,
                          f"--tol 1e-4 or --controller pc); '{controller.name}' has no tolerance")
     h0 = getattr(controller, "h0", None) or 1e-4 * (until - t0)
     race = Multirate(compiled, policy, min(max(h0, policy.hmin), policy.hmax),
-                     order=master.extrapolation, interpolation=master.interpolation)
+                     order=master.extrapolation, interpolation=master.interpolation,
+                     call_timeout=master.call_timeout)
     sink = Store(store) if store is not None else None
     settings = {"t0": t0, "until": until, "master": vars(master),
                 "controller": controller.describe(), **(config or {})}

@@ -83,17 +83,32 @@ def test_multirate_refuses_what_it_cannot_run(mixed) -> None:
         "interpolation applies to the multirate master only"]
 
 
-def test_failing_submodel_ends_the_race_cleanly() -> None:
-    system = System().add("clock", Clock(fail_at=0.5)).add("sum", Integrator(unit="s"))
+def _clock_system(mode: str) -> System:
+    system = System().add("clock", Clock(fail_at=0.5, mode=mode)).add("sum", Integrator(unit="s"))
     system.connect("clock.time", "sum.u")
     clock = system.models["clock"]
     clock.capabilities = type(clock.capabilities)(can_save_state=True)
     clock.save_state = lambda: clock.t  # type: ignore[method-assign]
     clock.restore_state = lambda token: setattr(clock, "t", token)  # type: ignore
-    result = simulate(system, 2.0, make_controller("pc", None, 1e-4), MULTIRATE)
+    return system
+
+
+def test_failing_submodel_ends_the_race_cleanly() -> None:
+    result = simulate(_clock_system("raise"), 2.0, make_controller("pc", None, 1e-4), MULTIRATE)
     assert result.status == "failed"
     assert "sub-model 'clock' failed" in result.message and "RuntimeError" in result.message
     assert 0.0 < result.t_end <= 0.5 and len(result.times) > 1  # results so far kept
+
+
+def test_hanging_submodel_times_out_in_the_race() -> None:
+    import time
+
+    start = time.perf_counter()
+    result = simulate(_clock_system("hang"), 2.0, make_controller("pc", None, 1e-4),
+                      MasterOptions("multirate", 2, call_timeout=0.5))
+    assert time.perf_counter() - start < 10.0
+    assert result.status == "failed" and "no answer within 0.5 s" in result.message
+    assert 0.0 < result.t_end <= 0.5 and len(result.times) > 1
 
 
 def test_store_and_plot_keep_each_submodels_steps(mixed, tmp_path) -> None:
