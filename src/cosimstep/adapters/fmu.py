@@ -7,9 +7,11 @@ from ``canGetAndSetFMUstate``, output derivatives (grey box) from ``maxOutputDer
 input derivatives from ``canInterpolateInputs``.
 
 An FMU is checked before anything is unpacked (:func:`check_fmu`): a file that is not a zip
-archive, has no ``modelDescription.xml``, has no binary for this platform, is model exchange only,
-or holds an entry that would unpack outside its folder is refused with a ``ValueError`` naming the
-file and the reason. The archive is unpacked into a temporary folder by :meth:`initialize` and
+archive, has no ``modelDescription.xml``, has no binary for this platform, is not of a version and
+kind the adapter runs, or holds an entry that would unpack outside its folder is refused with a
+``ValueError`` naming the file and the reason. FMI 3.0 co-simulation FMUs run in
+:mod:`cosimstep.adapters.fmu3`, model-exchange FMUs in :mod:`cosimstep.adapters.fmu_me`;
+:func:`cosimstep.adapters.fmu_open.open_fmu` picks the adapter. The archive is unpacked into a temporary folder by :meth:`initialize` and
 the folder is removed by :meth:`terminate`, also when a call failed.
 """
 
@@ -22,7 +24,7 @@ import tempfile
 import weakref
 import zipfile
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from ctypes import byref
 from pathlib import Path
 from typing import Any
@@ -51,8 +53,39 @@ class FmuError(RuntimeError):
     """An FMI call failed; the message names the FMU, the call and what the FMU logged."""
 
 
-def check_fmu(path: str | Path) -> ModelDescription:
-    """Read and check an FMU without unpacking it; raise ``ValueError`` saying why it is refused."""
+FMI2_CS = ("2.0", "CS")
+FMI2_ME = ("2.0", "ME")
+FMI3_CS = ("3.0", "CS")
+SUPPORTED = (FMI2_CS, FMI3_CS, FMI2_ME)
+"""FMI versions and kinds cosimstep runs, in the order :func:`fmu_interface` prefers them (an
+FMU's own co-simulation solver before cosimstep's wrapper around model exchange)."""
+_KIND_NAMES = {"CS": "co-simulation", "ME": "model exchange"}
+
+
+def fmu_interface(md: ModelDescription,
+                  supported: Sequence[tuple[str, str]] = SUPPORTED) -> tuple[str, str] | None:
+    """The first of ``supported`` (``(version, "CS" | "ME")``) that the FMU offers, or ``None``."""
+    offered = _offered(md)
+    return next((pair for pair in supported if pair in offered), None)
+
+
+def _offered(md: ModelDescription) -> list[tuple[str, str]]:
+    version = "3.0" if str(md.fmiVersion).startswith("3.") else str(md.fmiVersion)
+    return [(version, kind) for kind, part in (("CS", md.coSimulation), ("ME", md.modelExchange))
+            if part is not None]
+
+
+def _describe(pairs: Sequence[tuple[str, str]]) -> str:
+    return " and ".join(f"FMI {v} {_KIND_NAMES[k]}" for v, k in pairs) or "no interface"
+
+
+def check_fmu(path: str | Path,
+              supported: Sequence[tuple[str, str]] = (FMI2_CS,)) -> ModelDescription:
+    """Read and check an FMU without unpacking it; raise ``ValueError`` saying why it is refused.
+
+    ``supported`` lists the ``(version, kind)`` pairs the caller can run (default: what
+    :class:`FmuSubModel` runs); the FMU must offer one of them, with a binary for this platform.
+    """
     path = Path(path)
 
     def refuse(reason: str) -> ValueError:
@@ -77,12 +110,22 @@ def check_fmu(path: str | Path) -> ModelDescription:
         md = fmpy.read_model_description(str(path), validate=True)
     except Exception as exc:  # FMPy raises plain Exceptions for invalid descriptions
         raise refuse(f"invalid modelDescription.xml: {exc}") from exc
-    if md.fmiVersion != "2.0":
-        raise refuse(f"FMI {md.fmiVersion} is not supported yet (FMI 2.0 only)")
-    if md.coSimulation is None:
-        raise refuse("model exchange only; only co-simulation FMUs can be used for now")
-    binary = f"binaries/{fmpy.platform}/{md.coSimulation.modelIdentifier}" \
-             f"{fmpy.sharedLibraryExtension}"
+    if md.fmiVersion == "1.0":
+        raise refuse(f"FMI 1.0 is not supported (cosimstep runs {_describe(SUPPORTED)} FMUs)")
+    chosen = fmu_interface(md, supported)
+    if chosen is None:
+        offered = _offered(md)
+        only = " only" if len(offered) == 1 else ""
+        if not any(pair in SUPPORTED for pair in offered):
+            raise refuse(f"{_describe(offered)}{only} is not supported (cosimstep runs "
+                         f"{_describe(SUPPORTED)} FMUs)")
+        raise refuse(f"{_describe(offered)}{only}; this adapter runs {_describe(supported)} "
+                     "(cosimstep.adapters.fmu_open.open_fmu picks the adapter for any supported "
+                     "FMU)")
+    version, kind = chosen
+    part = md.coSimulation if kind == "CS" else md.modelExchange
+    folder = fmpy.platform_tuple if version == "3.0" else fmpy.platform
+    binary = f"binaries/{folder}/{part.modelIdentifier}{fmpy.sharedLibraryExtension}"
     if binary not in names:
         found = sorted({n.split("/")[1] for n in names
                         if n.startswith("binaries/") and n.count("/") >= 2})
