@@ -11,8 +11,9 @@ archive, has no ``modelDescription.xml``, has no binary for this platform, is no
 kind the adapter runs, or holds an entry that would unpack outside its folder is refused with a
 ``ValueError`` naming the file and the reason. FMI 3.0 co-simulation FMUs run in
 :mod:`cosimstep.adapters.fmu3`, model-exchange FMUs in :mod:`cosimstep.adapters.fmu_me`;
-:func:`cosimstep.adapters.fmu_open.open_fmu` picks the adapter. The archive is unpacked into a temporary folder by :meth:`initialize` and
-the folder is removed by :meth:`terminate`, also when a call failed.
+:func:`cosimstep.adapters.fmu_open.open_fmu` picks the adapter. The archive is unpacked into a
+temporary folder by :meth:`initialize` and the folder is removed by :meth:`terminate`, also when a
+call failed.
 """
 
 from __future__ import annotations
