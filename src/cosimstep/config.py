@@ -282,17 +282,16 @@ def _fmu_model(name: str, sec: ModelSection, header: HeaderSection, base_dir: Pa
     # Imported here: FMPy is only loaded when a system actually holds an FMU.
     from cosimstep.fmu.resolve import fmu_submodel, resolve_fmu
 
-    for key, given in (("class", sec.class_), ("solver", sec.solver)):
-        if given is not None:
-            problems.append(Problem(f"{where}.{key}", "not used by type 'fmu'",
-                                    "remove it (an FMU brings its own solver)"))
+    if sec.class_ is not None:
+        problems.append(Problem(f"{where}.class", "not used by type 'fmu'", "remove it"))
     fmu = resolve_fmu(sec.path, sec.recipe, base_dir, where, problems)
     if fmu is None:
         return None
     overrides = {f"parameters.{k}": v for k, v in sec.parameters.items()}
     overrides.update({f"start.{k}": v for k, v in sec.start.items()})
+    # `solver` is for model-exchange FMUs (integrated by cosimstep); fmu_submodel checks it
     return fmu_submodel(name, fmu, overrides, where, problems, shared=header.parameters,
-                        used=used)
+                        used=used, solver=sec.solver)
 
 
 def _python_model(sec: ModelSection, base_dir: Path, where: str,

@@ -560,10 +560,10 @@ def _in_fmu_units(values: dict[str, tuple[float, str | None]], fmu: Path, where:
     """Parameter values given with a unit, converted to the unit of the FMU variable."""
     if not any(unit for _, unit in values.values()):
         return values
-    from cosimstep.adapters.fmu import check_fmu
+    from cosimstep.adapters.fmu import SUPPORTED, check_fmu
 
     try:
-        md = check_fmu(fmu)
+        md = check_fmu(fmu, SUPPORTED)
     except ValueError:
         return values  # refused: fmu_submodel reports why
     declared = {v.name: v.unit or (v.declaredType.unit if v.declaredType is not None else None)

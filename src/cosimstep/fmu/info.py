@@ -1,8 +1,9 @@
 """What an FMU is, read from its ``modelDescription.xml`` (``cosimstep info MODEL.fmu``).
 
-Unlike :func:`cosimstep.adapters.fmu.check_fmu`, any FMI version and kind is described, so a
-user learns why an FMU cannot be co-simulated (model exchange only, FMI 3.0, another platform)
-instead of only that it cannot. Nothing is unpacked.
+Unlike :func:`cosimstep.adapters.fmu.check_fmu`, any FMI version and kind is described, and
+``runs_as`` says which cosimstep adapter runs it (FMI 2.0/3.0 co-simulation, or FMI 2.0 model
+exchange integrated by cosimstep) or why none can (FMI 1.0, FMI 3.0 model exchange, another
+platform). Nothing is unpacked.
 """
 
 from __future__ import annotations
@@ -17,6 +18,9 @@ CAPABILITIES = ("canGetAndSetFMUstate", "canSerializeFMUstate", "canInterpolateI
 # FMI 3.0 spells the state capabilities with a capital S.
 _FMI3_SPELLING = {"canGetAndSetFMUstate": "canGetAndSetFMUState",
                   "canSerializeFMUstate": "canSerializeFMUState"}
+_ADAPTERS = {("2.0", "CS"): "FmuSubModel (FMI 2.0 co-simulation)",
+             ("3.0", "CS"): "Fmu3SubModel (FMI 3.0 co-simulation)",
+             ("2.0", "ME"): "MeSubModel (model exchange, integrated with solve_ivp)"}
 
 
 def describe_fmu(path: str | Path) -> dict[str, Any]:
@@ -55,6 +59,14 @@ def describe_fmu(path: str | Path) -> dict[str, Any]:
                 if value is None and cap in _FMI3_SPELLING:
                     value = getattr(part, _FMI3_SPELLING[cap], None)
                 caps[cap] = value
+            if kind == "ME":
+                caps["numberOfContinuousStates"] = md.numberOfContinuousStates
+                caps["numberOfEventIndicators"] = md.numberOfEventIndicators
+                caps["needsCompletedIntegratorStep"] = getattr(
+                    part, "needsCompletedIntegratorStep", None)
+                for cap in ("maxOutputDerivativeOrder", "canInterpolateInputs",
+                            "canHandleVariableCommunicationStepSize"):
+                    caps.pop(cap)  # co-simulation only
             kinds[kind] = {"modelIdentifier": part.modelIdentifier, "capabilities": caps}
     binaries = sorted({n.split("/")[1] for n in names
                        if n.startswith("binaries/") and n.count("/") >= 2 and n.split("/")[1]})
@@ -77,8 +89,20 @@ def describe_fmu(path: str | Path) -> dict[str, Any]:
         "guid": md.guid, "description": md.description or "",
         "generationTool": md.generationTool or "", "platforms": binaries,
         "capabilities": {k: p["capabilities"] for k, p in kinds.items()},
-        "defaultExperiment": experiment, "variables": variables,
+        "defaultExperiment": experiment, "runs_as": _runs_as(path), "variables": variables,
     }
+
+
+def _runs_as(path: Path) -> str:
+    """The adapter that runs the FMU, or ``"not runnable: <reason>"``."""
+    from cosimstep.adapters.fmu import SUPPORTED, check_fmu, fmu_interface
+
+    try:
+        md = check_fmu(path, SUPPORTED)
+    except ValueError as exc:
+        return f"not runnable: {str(exc).split(': ', 1)[-1]}"
+    chosen = fmu_interface(md)
+    return _ADAPTERS[chosen] if chosen is not None else "not runnable"
 
 
 def _number(value: Any) -> Any:
@@ -105,6 +129,7 @@ def format_info(info: dict[str, Any]) -> str:
     for kind, caps in info["capabilities"].items():
         lines.append(f"  capabilities ({kind})")
         lines += [f"    {k:40s} {v}" for k, v in caps.items() if v is not None]
+    lines.append(f"  runs as          {info['runs_as']}")
     de = info["defaultExperiment"]
     if de:
         lines.append("  default experiment  " + ", ".join(f"{k} = {v}" for k, v in de.items()

@@ -57,8 +57,10 @@ def resolve_fmu(path: str | None, recipe: str | None, base_dir: Path, where: str
 
 def fmu_submodel(name: str, fmu: Path, overrides: Mapping[str, Any], where: str,
                  problems: list[Problem], *, shared: Mapping[str, float] | None = None,
-                 used: set[str] | None = None) -> SubModel | None:
-    """Create an :class:`~cosimstep.adapters.fmu.FmuSubModel` with checked overrides.
+                 used: set[str] | None = None,
+                 solver: Mapping[str, Any] | None = None) -> SubModel | None:
+    """Create the sub-model of an FMU (:func:`~cosimstep.adapters.fmu_open.open_fmu`: FMI 2.0 or
+    3.0 co-simulation, or FMI 2.0 model exchange integrated by cosimstep) with checked overrides.
 
     Parameters
     ----------
@@ -69,14 +71,23 @@ def fmu_submodel(name: str, fmu: Path, overrides: Mapping[str, Any], where: str,
     shared:
         A system's shared parameters: each one whose name is an FMU parameter is applied (and
         added to ``used``) unless an override names it too.
+    solver:
+        ``solve_ivp`` settings of a model-exchange FMU (``method``, ``rtol``, ``atol``); a
+        problem for a co-simulation FMU, which brings its own solver.
     """
-    from cosimstep.adapters.fmu import FmuSubModel, check_fmu
+    from cosimstep.adapters.fmu import FMI2_ME, SUPPORTED, check_fmu, fmu_interface
+    from cosimstep.adapters.fmu_open import open_fmu
 
     try:
-        md = check_fmu(fmu)
+        md = check_fmu(fmu, SUPPORTED)
     except ValueError as exc:
-        problems.append(Problem(where, str(exc), "use an FMI 2.0 co-simulation FMU built for "
-                                "this platform (`cosimstep info FILE.fmu` shows what it is)"))
+        problems.append(Problem(where, str(exc), "use an FMI 2.0 or 3.0 co-simulation or FMI 2.0 "
+                                "model-exchange FMU built for this platform (`cosimstep info "
+                                "FILE.fmu` shows what it is)"))
+        return None
+    if solver is not None and fmu_interface(md) != FMI2_ME:
+        problems.append(Problem(f"{where}.solver", "only a model-exchange FMU takes a solver",
+                                "remove it (a co-simulation FMU brings its own solver)"))
         return None
     by_name = {v.name: v for v in md.modelVariables}
     params = sorted(n for n, v in by_name.items() if v.causality == "parameter")
@@ -110,8 +121,17 @@ def fmu_submodel(name: str, fmu: Path, overrides: Mapping[str, Any], where: str,
             values[var] = value
     if not ok:
         return None
+    if solver is not None:
+        from cosimstep.adapters.fmu_me import make_me_solver
+
+        try:
+            solver = make_me_solver(solver)
+        except ValueError as exc:
+            problems.append(Problem(f"{where}.solver", str(exc),
+                                    "write {method = 'RK45', rtol = 1e-8, atol = 1e-10}"))
+            return None
     try:
-        return FmuSubModel(fmu, values, instance_name=name)
+        return open_fmu(fmu, values, instance_name=name, solver=solver)
     except ValueError as exc:
         problems.append(Problem(where, str(exc), "set only parameters and start values the "
                                 "FMU allows to be set"))
