@@ -423,7 +423,8 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
                       fmi3Boolean *earlyReturn, fmi3Float64 *lastSuccessfulTime) {
     Instance *inst = as_instance(instance);
     State *s = &inst->s;
-    const double a = currentCommunicationPoint, h = communicationStepSize;
+    /* the local steps span (a + h) - a, as OdeSubModel's RK4 over [t, t + h] does */
+    const double a = currentCommunicationPoint, h = (a + communicationStepSize) - a;
     const PendulumParameters p = parameters(s);
     double x[2];
     (void)noSetFMUStatePriorToCurrentPoint;
@@ -432,7 +433,8 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
     *earlyReturn = fmi3False;
     *lastSuccessfulTime = s->v[VR_TIME];
     if (inst->mode != MODE_STEP) return FAIL(inst, "fmi3DoStep outside step mode");
-    if (!(h > 0.0)) return FAIL(inst, "fmi3DoStep: step size %g is not positive", h);
+    if (!(communicationStepSize > 0.0))
+        return FAIL(inst, "fmi3DoStep: step size %g is not positive", communicationStepSize);
     if (fabs(a - s->v[VR_TIME]) > 1e-9 * fmax(1.0, fabs(s->v[VR_TIME])))
         return FAIL(inst, "fmi3DoStep: communication point %.17g differs from the FMU time %.17g",
                     a, s->v[VR_TIME]);
@@ -445,7 +447,7 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
         return FAIL(inst, "fmi3DoStep: state is not finite after the step from t = %g", a);
     s->v[VR_THETA] = x[0];
     s->v[VR_OMEGA] = x[1];
-    s->v[VR_TIME] = a + h;
+    s->v[VR_TIME] = a + communicationStepSize;
     *lastSuccessfulTime = s->v[VR_TIME];
     return fmi3OK;
 }
