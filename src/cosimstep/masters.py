@@ -107,6 +107,79 @@ class _TimedCaller:
         return value
 
 
+class _Abandoned(BaseException):
+    """Ends a watched worker whose call came back after the run had given up on it."""
+
+
+class _Watchdog:
+    """Runs a whole job (a fixed-step run) in one daemon worker thread and watches its calls.
+
+    :class:`_TimedCaller` hands every call to a worker and waits for it: two thread switches
+    per call, which cost more than a small FMU's step. Here the worker runs the loop itself and
+    stamps the start of each sub-model call (:meth:`call`); the calling thread sleeps until the
+    running call's deadline and ends the run when that call is still the one running. A
+    timed-out call is abandoned exactly as before: its thread is a daemon, and if the call ever
+    returns, the worker stops there (:class:`_Abandoned`) without touching anything else.
+    """
+
+    def __init__(self, timeout: float) -> None:
+        self.timeout = timeout
+        self.started = 0.0  # perf_counter() when the running call began; 0.0: none running
+        self.where: tuple[int, float, float | None] = (-1, math.nan, None)  # (k, t, h)
+        self.abandoned = False
+
+    def call(self, k: int, t: float, h: float | None, fn: Any, args: tuple) -> Any:
+        self.where = (k, t, h)
+        self.started = time.perf_counter()
+        try:
+            return fn(*args)
+        finally:
+            self.started = 0.0
+            if self.abandoned:
+                raise _Abandoned
+
+    def run(self, job: Any, names: Sequence[str]) -> Any:
+        """``job()`` in the worker; its result or exception, or a :class:`SubModelError` for
+        the call that exceeded the timeout."""
+        box: list = []
+        done = threading.Event()
+
+        def work() -> None:
+            try:
+                box.append((True, job()))
+            except _Abandoned:
+                return
+            except BaseException as exc:  # handed to the calling thread
+                box.append((False, exc))
+            finally:
+                done.set()
+
+        threading.Thread(target=work, daemon=True, name="cosimstep-run").start()
+        wait = self.timeout
+        try:
+            while not done.wait(wait):
+                started = self.started
+                if started and time.perf_counter() - started >= self.timeout:
+                    where = self.where
+                    if self.started == started:  # still the same call
+                        self.abandoned = True
+                        k, t, h = where
+                        msg = f"no answer within {self.timeout:g} s (call abandoned)"
+                        raise SubModelError(names[k], t, f"TimeoutError: {msg}", h) \
+                            from TimeoutError(msg)
+                wait = started + self.timeout - time.perf_counter() if started else self.timeout
+                wait = max(wait, 1e-3)
+        except KeyboardInterrupt:
+            # stop at the next call's return; wait for it as long as a call may take
+            self.abandoned = True
+            done.wait(self.timeout)
+            raise
+        ok, value = box[0]
+        if not ok:
+            raise value
+        return value
+
+
 class Master:
     """Executes communication steps over a compiled system."""
 
@@ -129,7 +202,11 @@ class Master:
             self.sequence = [system.names.index(m) for m in options.order]
             self.sequence += [k for k in range(n) if k not in self.sequence]
         self._deriv_order = [m.capabilities.max_input_derivative_order for m in system.models]
+        # a connection without gain, offset or unit change passes values on untouched
+        self._identity = [bool(np.all(a == 1.0) and np.all(b == 0.0))
+                          for a, b in zip(system.a, system.b)]
         self._call = _TimedCaller(options.call_timeout) if options.call_timeout else None
+        self._watch: _Watchdog | None = None  # set while a watched run is under way
         self._dy0: np.ndarray | None = None
         self.predicted = self._predicted_columns()
         self.consumed = np.zeros(system.n_outputs, dtype=bool)  # outputs some model reads
@@ -173,7 +250,7 @@ class Master:
         if all(m.capabilities.provides_derivatives for m in self.system.models):
             system = self.system
             for k, m in enumerate(system.models):  # slopes at t0 need the inputs at t0
-                self._guard(k, t0, m.set_inputs, system.a[k] * y[system.src[k]] + system.b[k])
+                self._guard(k, t0, m.set_inputs, self._route(k, y[system.src[k]]))
             self._dy0 = np.concatenate([self._guard(k, t0, m.get_output_derivatives)
                                         for k, m in enumerate(system.models)])
         return y
@@ -233,8 +310,9 @@ class Master:
             model = self.system.models[k]
             if gauss_seidel and model.capabilities.has_direct_feedthrough:
                 # its outputs must reflect inputs at t + h before later models interpolate them
-                src, a, b = self.system.src[k], self.system.a[k], self.system.b[k]
-                self._guard(k, t, model.set_inputs, a * evaluate(coef[:, src], h) + b, h=h)
+                src = self.system.src[k]
+                self._guard(k, t, model.set_inputs, self._route(k, evaluate(coef[:, src], h)),
+                            h=h)
             y_new[out] = self._outputs(k, t, h)
             if gauss_seidel:
                 # Later models see this model's fresh values: interpolate through t + h.
@@ -261,14 +339,14 @@ class Master:
     def _step_model(self, k: int, t: float, h: float, coef: np.ndarray) -> None:
         system = self.system
         model = system.models[k]
-        src, a, b = system.src[k], system.a[k], system.b[k]
+        src, a = system.src[k], system.a[k]
         q = min(self._deriv_order[k], coef.shape[0] - 1)
         if q > 0 or coef.shape[0] == 1:
-            u = a * coef[0, src] + b
+            u = self._route(k, coef[0, src])
         else:
             # The sub-model holds inputs constant: give it the extrapolated mid-step value,
             # which is second-order accurate over the step where the start value is first-order.
-            u = a * evaluate(coef[:, src], 0.5 * h) + b
+            u = self._route(k, evaluate(coef[:, src], 0.5 * h))
         start = time.perf_counter()
         self.calls[k] += 1
         self._guard(k, t, model.set_inputs, u, h=h)
@@ -277,11 +355,25 @@ class Master:
         self._guard(k, t, model.do_step, t, h, h=h)
         self.time_in_models[k] += time.perf_counter() - start
 
+    def held_kernel(self) -> _HeldKernel | None:
+        """The lean form of :meth:`step` for runs of many plain steps, or ``None``.
+
+        It applies when inputs are held over the step (extrapolation order 0) and no sub-model
+        has direct feedthrough: each step is then "inputs from one stored row, step, outputs into
+        the next row", with nothing to extrapolate or settle (see :class:`_HeldKernel`).
+        """
+        if self.options.extrapolation != 0 or self.options.name not in ("jacobi",
+                                                                         "gauss-seidel"):
+            return None
+        if any(m.capabilities.has_direct_feedthrough for m in self.system.models):
+            return None
+        return _HeldKernel(self)
+
     def _settle_feedthrough(self, t: float, y: np.ndarray) -> None:
         """Refresh direct-feedthrough outputs from inputs at ``t`` (no step, no call)."""
         system = self.system
         for k in system.feedthrough_order:
-            u = system.a[k] * y[system.src[k]] + system.b[k]
+            u = self._route(k, y[system.src[k]])
             self._guard(k, t, system.models[k].set_inputs, u)
             y[system.output_slices[k]] = self._outputs(k, t, None)
 
@@ -297,8 +389,16 @@ class Master:
                 raise SubModelError(self.system.names[k], t,
                                     f"returned non-finite output(s) {', '.join(bad)}", h)
 
+    def _route(self, k: int, x: np.ndarray) -> np.ndarray:
+        """Model ``k``'s inputs from its sources' values ``x`` (gain, offset, unit change)."""
+        if self._identity[k]:
+            return x
+        return self.system.a[k] * x + self.system.b[k]
+
     def _guard(self, k: int, t: float, fn: Any, *args: Any, h: float | None = None) -> Any:
         try:
+            if self._watch is not None:
+                return self._watch.call(k, t, h, fn, args)
             if self._call is not None:
                 return self._call(fn, *args)
             return fn(*args)
@@ -311,3 +411,110 @@ class Master:
     @property
     def max_step(self) -> float:
         return min((m.capabilities.max_step for m in self.system.models), default=math.inf)
+
+
+class _HeldKernel:
+    """:meth:`Master.step` at extrapolation order 0 without feedthrough, for a row-major table.
+
+    The values live in one preallocated table (one row per communication point). A step reads
+    model ``k``'s inputs from row ``n`` (Jacobi, or Gauss–Seidel sources that step later) or row
+    ``n + 1`` (Gauss–Seidel sources already stepped) through integer index arrays fixed once, and
+    writes its outputs into row ``n + 1``. A sub-model that offers its raw C calls
+    (``_direct_io``, an FMU) is called with addresses: the inputs' address is the source row's
+    when its inputs are one contiguous run of columns passed on unchanged, otherwise a gathered
+    copy; the outputs go straight into the table. Nothing is allocated per step for such a
+    model. The calls, their order, the values, the counts and the errors are those of
+    :meth:`Master.step` (compared in tests/orchestration/test_lean_fixed_step.py).
+    """
+
+    def __init__(self, master: Master) -> None:
+        self.master = master
+        system = master.system
+        self.names = system.names
+        m = system.n_outputs
+        self.m = m
+        owner = np.empty(m, dtype=int)
+        for k, sl in enumerate(system.output_slices):
+            owner[sl] = k
+        rank = {k: i for i, k in enumerate(master.sequence)}
+        gauss_seidel = master.options.name == "gauss-seidel"
+        self.calls = [0] * len(system.models)  # added to the master's counts by :meth:`sync`
+        self.time = [0.0] * len(system.models)
+        watched = master._watch is not None or master._call is not None
+        self.plan = []
+        for k in master.sequence:
+            model = system.models[k]
+            src = np.asarray(system.src[k], dtype=int)
+            # 1 where model k reads a fresh value (a Gauss–Seidel source stepped before it)
+            fresh = np.array([gauss_seidel and rank[owner[j]] < rank[k] for j in src], dtype=int)
+            gather = src + m * fresh  # flat index into the table, relative to row n
+            out = system.output_slices[k]
+            raw = None if watched else getattr(model, "_direct_io", lambda: None)()
+            in_offset = None  # the inputs' byte offset from row n, when no gather is needed
+            buffer = None
+            if raw is not None:
+                contiguous = src.size > 0 and np.array_equal(src, np.arange(src[0], src[0]
+                                                                            + src.size))
+                if master._identity[k] and contiguous and len(set(fresh.tolist())) == 1:
+                    in_offset = 8 * (int(src[0]) + m * int(fresh[0]))
+                else:
+                    buffer = np.zeros(src.size)
+                raw = (*raw, 8 * out.start, buffer,
+                       buffer.ctypes.data if buffer is not None else 0)
+            self.plan.append((k, model, raw, in_offset, gather, master._identity[k],
+                              system.a[k], system.b[k], out))
+
+    def sync(self) -> None:
+        """Add the counts so far to the master's (once, when the run ends)."""
+        self.master.calls += np.array(self.calls, dtype=np.int64)
+        self.master.time_in_models += np.array(self.time)
+        self.calls = [0] * len(self.calls)
+        self.time = [0.0] * len(self.time)
+
+    def step(self, t: float, h: float, n: int, flat: np.ndarray, base: int) -> None:
+        """Step every model from row ``n`` to row ``n + 1`` of the table.
+
+        ``flat`` is the table as one flat array, ``base`` its address; a sub-model failure
+        raises :class:`SubModelError` as :meth:`Master.step` does.
+        """
+        m = self.m
+        row = n * m
+        calls, spent, clock = self.calls, self.time, time.perf_counter
+        for k, model, raw, in_offset, gather, identity, a, b, out in self.plan:
+            if raw is not None:
+                (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
+                 out_offset, buffer, buffer_address) = raw
+                if in_offset is not None:
+                    address = base + 8 * row + in_offset
+                else:
+                    x = flat[gather + row]
+                    buffer[:] = x if identity else a * x + b
+                    address = buffer_address
+                calls[k] += 1
+                start = clock()
+                status = set_real(component, in_vr, n_in, address)
+                if status > 1:
+                    self._fail(k, t, h, fail("fmi2SetReal", status))
+                status = do_step(component, t, h, 1)
+                if status > 1:
+                    self._fail(k, t, h, fail("fmi2DoStep", status))
+                spent[k] += clock() - start
+                status = get_real(component, out_vr, n_out, base + 8 * (row + m) + out_offset)
+                if status > 1:
+                    self._fail(k, t, h, fail("fmi2GetReal", status))
+            else:
+                master = self.master
+                x = flat[gather + row]
+                u = x if identity else a * x + b
+                calls[k] += 1
+                start = clock()
+                master._guard(k, t, model.set_inputs, u, h=h)
+                master._guard(k, t, model.do_step, t, h, h=h)
+                spent[k] += clock() - start
+                flat[row + m + out.start:row + m + out.stop] = master._outputs(k, t, h)
+        new = flat[row + m:row + 2 * m]
+        if not math.isfinite(sum(new.tolist())):  # NaN or inf somewhere (or a sum overflow)
+            self.master._check_finite(range(len(self.plan)), t, new, h)
+
+    def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
+        raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc

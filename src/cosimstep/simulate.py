@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from cosimstep.controllers import Controller
+from cosimstep.controllers import Controller, Fixed
 from cosimstep.errors import StepSizeError, SubModelError
-from cosimstep.masters import Master, MasterOptions
+from cosimstep.masters import Master, MasterOptions, _Watchdog
 from cosimstep.reference import ErrorReport, Reference, error_report
 from cosimstep.store import Store
 from cosimstep.system import System
@@ -165,6 +165,180 @@ class _Context:
         self.master.restore(token)
 
 
+class _ControllerLoop:
+    """The time loop for any controller: attempts, rejections, the step context."""
+
+    def __init__(self, runner: Master, controller: Controller, t0: float, until: float,
+                 events: list[float], sink: Store | None, bar: Any) -> None:
+        self.runner, self.controller = runner, controller
+        self.t0, self.until, self.events = t0, until, events
+        self.sink, self.bar = sink, bar
+        self.ctx = _Context(runner)
+        self.t = t0
+        self.steps: list[float] = []
+        self.rejected = 0
+
+    def run(self) -> None:
+        runner, controller, ctx, sink, bar = (self.runner, self.controller, self.ctx,
+                                              self.sink, self.bar)
+        until, events, steps = self.until, self.events, self.steps
+        t = self.t0
+        clock = _Clock(t)
+        y0 = runner.initialize(t)
+        ctx.push(t, y0)
+        if sink is not None:
+            sink.add_point(0, t, y0)
+        h = controller.initial_step(t, until)
+        hmax_models = runner.max_step
+        while t < until:
+            landing = _next_landing(events, t, until)
+            h = min(h, hmax_models)
+            if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
+                h = landing - t  # land exactly on the event / end time
+            attempt = controller.attempt(ctx, t, h)
+            if sink is not None:
+                sink.add_attempt(None, t, h, attempt.accepted, attempt.error)
+            if attempt.accepted:
+                clock.add(h)
+                t = landing if abs(clock.value - landing) <= 1e-9 * h else clock.value
+                self.t = t
+                if t == landing and t < until:
+                    controller.event(t)
+                ctx.push(t, attempt.y)
+                if t == landing and t < until:
+                    ctx.restart()
+                steps.append(h)
+                if sink is not None:
+                    sink.add_point(len(steps), t, attempt.y)
+                if bar is not None:
+                    bar.update(h)
+            else:
+                self.rejected += 1
+            h = attempt.h_next
+
+    def finish(self) -> None:
+        pass
+
+    def results(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        ctx = self.ctx
+        values = np.array(ctx.rows) if ctx.rows else np.empty((0, self.runner.system.n_outputs))
+        return np.array(ctx.all_times), values, np.array(self.steps)
+
+
+class _FixedLoop:
+    """The fixed-step time loop without per-step objects: the same run as
+    :class:`_ControllerLoop` with :class:`~cosimstep.controllers.Fixed` (same calls, values,
+    counts, stored rows and errors; tests/orchestration/test_lean_fixed_step.py).
+
+    Points go into a preallocated table (grown in chunks if time events add steps), the clock's
+    compensated sum is inlined, the store receives rows in batches (its commit interval is
+    unchanged) and the progress bar is updated every :attr:`BATCH` steps. With inputs held and
+    no feedthrough, :class:`~cosimstep.masters._HeldKernel` does the master's step; otherwise
+    :meth:`Master.step` is called with the history the controller loop would pass.
+    """
+
+    BATCH = 256  # steps between store writes and progress updates
+
+    def __init__(self, runner: Master, step: float, t0: float, until: float,
+                 events: list[float], sink: Store | None, bar: Any) -> None:
+        self.runner, self.h_step = runner, step
+        self.t0, self.until, self.events = t0, until, events
+        self.sink, self.bar = sink, bar
+        self.t = t0
+        self.n = -1  # index of the newest point in the table
+        self.rejected = 0
+        m = runner.system.n_outputs
+        # room for the whole run if it is small, else grown by doubling (at most ~32 MB first)
+        rows = int(min((until - t0) / step, max(1024, 4_000_000 // max(m, 1)))) \
+            + len(events) + 2
+        self.times = np.empty(rows)
+        self.table = np.empty((rows, m))
+        self.hs = np.empty(rows)
+        self.kernel = None
+        self._stored = 0  # points handed to the store so far
+        self._shown = 0  # steps shown on the progress bar so far
+
+    def _grow(self) -> None:
+        rows = 2 * self.times.shape[0]
+        for name in ("times", "table", "hs"):
+            old = getattr(self, name)
+            new = np.empty((rows, *old.shape[1:]))
+            new[:old.shape[0]] = old
+            setattr(self, name, new)
+
+    def run(self) -> None:
+        runner = self.runner
+        until, events, h_step = self.until, self.events, self.h_step
+        t = self.t0
+        y0 = runner.initialize(t)
+        self.times[0], self.table[0], self.n = t, y0, 0
+        kernel = self.kernel = runner.held_kernel()
+        hmax_models = runner.max_step
+        clock, carry = t, 0.0  # _Clock, inlined
+        segment = 0  # first point extrapolation may use (the last time event's)
+        n = 0
+        table = self.table
+        flat, base = table.reshape(-1), table.ctypes.data
+        while t < until:
+            landing = _next_landing(events, t, until)
+            h = min(h_step, hmax_models)
+            if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
+                h = landing - t  # land exactly on the event / end time
+            if n + 1 == table.shape[0]:
+                self._grow()
+                table = self.table
+                flat, base = table.reshape(-1), table.ctypes.data
+            if kernel is not None:
+                kernel.step(t, h, n, flat, base)
+            else:
+                first = max(segment, n + 1 - HISTORY_ROWS)
+                table[n + 1] = runner.step(t, h, self.times[first:n + 1].tolist(),
+                                           table[first:n + 1].copy())
+            s = clock + h
+            if abs(clock) >= abs(h):
+                carry += (clock - s) + h
+            else:
+                carry += (h - s) + clock
+            clock = s
+            value = clock + carry
+            t = landing if abs(value - landing) <= 1e-9 * h else value
+            n += 1
+            self.times[n], self.hs[n - 1] = t, h
+            self.n, self.t = n, t
+            if t == landing and t < until:
+                segment = n
+                runner.restart()
+            if n % self.BATCH == 0:
+                self._publish()
+
+    def _publish(self) -> None:
+        """Hand the points not yet stored to the store, and the steps to the progress bar."""
+        n = self.n
+        if self.sink is not None and n >= self._stored:
+            first = self._stored
+            self.sink.add_points(first, self.times[first:n + 1].tolist(),
+                                 self.table[first:n + 1].tolist())
+            if first == 0:
+                first = 1
+            self.sink.add_accepted_attempts(self.times[first - 1:n].tolist(),
+                                            self.hs[first - 1:n].tolist())
+            self._stored = n + 1
+        if self.bar is not None and n > self._shown:
+            self.bar.update(float(np.sum(self.hs[self._shown:n])))
+            self._shown = n
+
+    def finish(self) -> None:
+        if self.kernel is not None:
+            self.kernel.sync()
+            self.kernel = None
+        self.runner._watch = None
+        self._publish()
+
+    def results(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = self.n
+        return (self.times[:n + 1].copy(), self.table[:n + 1].copy(), self.hs[:max(n, 0)].copy())
+
+
 class _Clock:
     """Compensated (Neumaier) sum of the steps: 10^4 steps of 0.001 end at 10.0, not 10 - 1e-12."""
 
@@ -248,61 +422,42 @@ def simulate(
     if sink is not None:
         sink.begin(name, settings, compiled.output_names,
                    compiled.output_units)
-    ctx = _Context(runner)
     status, message = "ok", "completed"
-    steps: list[float] = []
-    rejected = 0
     wall0 = time.perf_counter()
     bar = _progress(progress, t0, until)
-    t = t0
-    clock = _Clock(t0)
     failure: BaseException | None = None
+    # The fixed step needs no controller, context or attempt per step: a lean loop gives the
+    # same run (a subclass of Fixed may change attempt(), so only Fixed itself qualifies).
+    loop: _FixedLoop | _ControllerLoop
+    if type(controller) is Fixed:
+        loop = _FixedLoop(runner, controller.step, t0, until, events, sink, bar)
+    else:
+        loop = _ControllerLoop(runner, controller, t0, until, events, sink, bar)
     try:
-        y0 = runner.initialize(t0)
-        ctx.push(t0, y0)
-        if sink is not None:
-            sink.add_point(0, t0, y0)
-        h = controller.initial_step(t0, until)
-        hmax_models = runner.max_step
-        while t < until:
-            landing = _next_landing(events, t, until)
-            h = min(h, hmax_models)
-            if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
-                h = landing - t  # land exactly on the event / end time
-            attempt = controller.attempt(ctx, t, h)
-            if sink is not None:
-                sink.add_attempt(None, t, h, attempt.accepted, attempt.error)
-            if attempt.accepted:
-                clock.add(h)
-                t = landing if abs(clock.value - landing) <= 1e-9 * h else clock.value
-                if t == landing and t < until:
-                    controller.event(t)
-                ctx.push(t, attempt.y)
-                if t == landing and t < until:
-                    ctx.restart()
-                steps.append(h)
-                if sink is not None:
-                    sink.add_point(len(steps), t, attempt.y)
-                if bar is not None:
-                    bar.update(h)
-            else:
-                rejected += 1
-            h = attempt.h_next
+        if isinstance(loop, _FixedLoop) and master.call_timeout:
+            runner._watch = _Watchdog(master.call_timeout)
+            runner._watch.run(loop.run, compiled.names)
+        else:
+            loop.run()
     except SubModelError as exc:
         status, message, failure = "failed", str(exc), exc
     except StepSizeError as exc:
-        status, message, failure = "failed", f"at t = {t:.9g}: {exc}", exc
+        status, message, failure = "failed", f"at t = {loop.t:.9g}: {exc}", exc
     except Exception as exc:
-        status, message, failure = "failed", f"at t = {t:.9g}: {type(exc).__name__}: {exc}", exc
+        status, message, failure = \
+            "failed", f"at t = {loop.t:.9g}: {type(exc).__name__}: {exc}", exc
     except KeyboardInterrupt as exc:
-        status, message, failure = "interrupted", f"interrupted by the user at t = {t:.9g}", exc
+        status, message, failure = \
+            "interrupted", f"interrupted by the user at t = {loop.t:.9g}", exc
     finally:
+        loop.finish()
         if bar is not None:
             bar.close()
         runner.terminate()
     wall = time.perf_counter() - wall0
-    times = np.array(ctx.all_times)
-    values = np.array(ctx.rows) if ctx.rows else np.empty((0, compiled.n_outputs))
+    t = loop.t
+    times, values, steps = loop.results()
+    rejected = loop.rejected
     err, ref_values = None, None
     if reference is not None and len(times) > 1:
         names = [n for n in compiled.output_names if n in reference.mapping]
@@ -312,13 +467,13 @@ def simulate(
         err = error_report(times, values[:, cols], ref_values, names)
         if sink is not None:
             sink.add_reference(ref_values, cols)
-    models = {n: ModelStats(int(c), len(steps), rejected, 0, np.array(steps))
+    models = {n: ModelStats(int(c), len(steps), rejected, 0, steps.copy())
               for n, c in zip(compiled.names, runner.calls)}
     result = SimulationResult(
         status=status, message=message, t_end=float(t), names=compiled.output_names,
         units=compiled.output_units, times=times, values=values,
         calls={n: int(c) for n, c in zip(compiled.names, runner.calls)},
-        steps_accepted=len(steps), steps_rejected=rejected, step_sizes=np.array(steps),
+        steps_accepted=len(steps), steps_rejected=rejected, step_sizes=steps,
         wall_s=wall, time_in_models={n: float(s) for n, s in
                                      zip(compiled.names, runner.time_in_models)},
         store=str(store) if store is not None else None, error=err, reference=ref_values,

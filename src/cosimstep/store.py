@@ -91,6 +91,24 @@ class Store:
         self._attempts.append((self.run_id, self._seq, model, t, h, int(accepted), error))
         self._seq += 1
 
+    def add_points(self, first_step: int, times: Sequence[float],
+                   rows: Sequence[Sequence[float]]) -> None:
+        """Points ``first_step, first_step + 1, ...`` at once (the rows :meth:`add_point` would
+        write one by one)."""
+        rid = self.run_id
+        self._points.extend((rid, first_step + i, t) for i, t in enumerate(times))
+        self._samples.extend((rid, first_step + i, j, v) for i, row in enumerate(rows)
+                             for j, v in enumerate(row))
+        if time.monotonic() - self._last_flush > self._flush_seconds:
+            self.flush()
+
+    def add_accepted_attempts(self, times: Sequence[float], steps: Sequence[float]) -> None:
+        """Accepted synchronous attempts ``[t, t + h]`` in order, without an error estimate."""
+        rid, seq = self.run_id, self._seq
+        self._attempts.extend((rid, seq + i, None, t, h, 1, None)
+                              for i, (t, h) in enumerate(zip(times, steps)))
+        self._seq += len(times)
+
     def flush(self) -> None:
         db = self._db
         db.executemany("INSERT INTO point VALUES (?, ?, ?)", self._points)

@@ -1,0 +1,139 @@
+"""The lean fixed-step loop (``Fixed`` controller) and the general controller loop give the same
+run: values, times, calls, step sizes, stored rows, failures — on the split double pendulum with
+time events (toggled), and on a chain with a gain, an offset, a unit change, direct feedthrough
+and an unconnected input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cosimstep import Fixed, MasterOptions, System, load_system, read_run, simulate
+from helpers import Clock, Gain, Integrator
+
+
+class GeneralFixed(Fixed):
+    """The same controller, but not ``Fixed`` itself: ``simulate`` takes the general loop."""
+
+
+def assert_same_run(lean, general) -> None:
+    assert lean.status == general.status and lean.message == general.message
+    assert lean.t_end == general.t_end
+    assert np.array_equal(lean.times, general.times)
+    assert np.array_equal(lean.values, general.values)  # bit for bit
+    assert np.array_equal(lean.step_sizes, general.step_sizes)
+    assert lean.calls == general.calls
+    assert (lean.steps_accepted, lean.steps_rejected) == \
+        (general.steps_accepted, general.steps_rejected)
+    assert {n: (m.calls, m.accepted, m.rejected) for n, m in lean.models.items()} == \
+        {n: (m.calls, m.accepted, m.rejected) for n, m in general.models.items()}
+    if general.error is not None:
+        assert lean.error.max_abs == general.error.max_abs
+
+
+def assert_same_store(a: Path, b: Path) -> None:
+    ra, rb = read_run(a), read_run(b)
+    assert (ra.status, ra.message) == (rb.status, rb.message)
+    assert np.array_equal(ra.times, rb.times) and np.array_equal(ra.values, rb.values)
+    assert np.array_equal(ra.attempts, rb.attempts)
+    assert ra.attempt_models == rb.attempt_models
+    assert ra.summary["calls"] == rb.summary["calls"]
+    assert (ra.reference is None) == (rb.reference is None)
+    if ra.reference is not None:
+        assert np.array_equal(ra.reference, rb.reference)
+
+
+@pytest.mark.parametrize("master", ["jacobi", "gauss-seidel"])
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_toggled_pendulum_same_run_both_loops(examples: Path, tmp_path: Path, master: str,
+                                              order: int) -> None:
+    """Time events at 1 s and 2 s: landing, extrapolation restart, grey-box slopes."""
+    spec = load_system(examples / "double_pendulum_toggled.toml")
+    runs = {}
+    for label, controller in (("lean", Fixed(0.01)), ("general", GeneralFixed(0.01))):
+        runs[label] = simulate(spec.system, 2.5, controller, MasterOptions(master, order),
+                               reference=spec.reference, store=tmp_path / f"{label}.db")
+    assert runs["lean"].success and runs["lean"].steps_accepted == 250
+    assert 1.0 in runs["lean"].times and 2.0 in runs["lean"].times
+    assert_same_run(runs["lean"], runs["general"])
+    assert_same_store(tmp_path / "lean.db", tmp_path / "general.db")
+
+
+def chain() -> System:
+    """clock → (gain 2, offset 1, s → ms) → a → (ms → s) → b; d → feedthrough gain → c → (gain
+    −0.5) → d; one more integrator has no connection (its input's start value)."""
+    s = System()
+    s.add("clock", Clock()).add("a", Integrator(unit="ms")).add("b", Integrator(unit="s"))
+    s.add("g", Gain(3.0)).add("c", Integrator()).add("d", Integrator(x0=1.0))
+    s.add("idle", Integrator())
+    s.connect("clock.time", "a.u", gain=2.0, offset=1.0).connect("a.x", "b.u")
+    s.connect("d.x", "g.u").connect("g.y", "c.u").connect("c.x", "d.u", gain=-0.5)
+    return s
+
+
+@pytest.mark.parametrize("master", ["jacobi", "gauss-seidel"])
+@pytest.mark.parametrize("order", [0, 2])
+def test_chain_with_conversions_and_feedthrough(master: str, order: int) -> None:
+    lean = simulate(chain(), 1.0, Fixed(0.1), MasterOptions(master, order))
+    general = simulate(chain(), 1.0, GeneralFixed(0.1), MasterOptions(master, order))
+    assert lean.success and lean.values[-1, 2] != 0.0
+    assert_same_run(lean, general)
+
+
+def held_chain() -> System:
+    """No feedthrough, sources out of column order and a gain: the held kernel's gather path."""
+    s = System()
+    s.add("a", Integrator(x0=1.0)).add("b", Integrator(x0=2.0)).add("c", Integrator())
+    s.connect("b.x", "a.u", gain=-1.0).connect("c.x", "b.u").connect("a.x", "c.u")
+    return s
+
+
+@pytest.mark.parametrize("master", ["jacobi", "gauss-seidel"])
+def test_held_kernel_on_python_models(master: str) -> None:
+    lean = simulate(held_chain(), 2.0, Fixed(0.05), MasterOptions(master, 0))
+    general = simulate(held_chain(), 2.0, GeneralFixed(0.05), MasterOptions(master, 0))
+    assert lean.success
+    assert_same_run(lean, general)
+
+
+def failing(mode: str) -> System:
+    s = System()
+    s.add("clock", Clock(fail_at=0.5, mode=mode)).add("sink", Integrator(unit="s"))
+    s.connect("clock.time", "sink.u")
+    return s
+
+
+@pytest.mark.parametrize("mode", ["raise", "nan", "hang"])
+@pytest.mark.parametrize("order", [0, 2])
+def test_failures_end_both_loops_alike(tmp_path: Path, mode: str, order: int) -> None:
+    runs = {}
+    for label, controller in (("lean", Fixed(0.1)), ("general", GeneralFixed(0.1))):
+        options = MasterOptions("jacobi", order, call_timeout=0.3 if mode == "hang" else None)
+        runs[label] = simulate(failing(mode), 1.0, controller, options,
+                               store=tmp_path / f"{label}.db")
+    assert runs["lean"].status == "failed" and runs["lean"].steps_accepted == 5
+    assert "'clock'" in runs["lean"].message and "t = 0.5" in runs["lean"].message
+    assert_same_run(runs["lean"], runs["general"])
+    assert_same_store(tmp_path / "lean.db", tmp_path / "general.db")
+
+
+def test_timeout_watch_lets_normal_runs_finish() -> None:
+    """With call_timeout the lean loop runs in a watched worker thread; a run whose calls are all
+    quick is unchanged by it."""
+    spec = load_system(Path(__file__).parents[2] / "examples" / "double_pendulum_slow.toml")
+    watched = simulate(spec.system, 0.5, Fixed(0.01), MasterOptions("jacobi", 0,
+                                                                     call_timeout=5.0))
+    plain = simulate(spec.system, 0.5, Fixed(0.01), MasterOptions("jacobi", 0))
+    assert watched.success
+    assert_same_run(watched, plain)
+
+
+def test_held_kernel_applies_exactly_without_extrapolation_and_feedthrough() -> None:
+    from cosimstep.masters import Master
+
+    for master in ("jacobi", "gauss-seidel"):
+        assert Master(held_chain().compile(), MasterOptions(master, 0)).held_kernel() is not None
+        assert Master(held_chain().compile(), MasterOptions(master, 1)).held_kernel() is None
+        assert Master(chain().compile(), MasterOptions(master, 0)).held_kernel() is None
