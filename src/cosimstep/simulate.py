@@ -279,9 +279,12 @@ class _FixedLoop:
         n = 0
         table = self.table
         flat, base = table.reshape(-1), table.ctypes.data
+        h_plain = min(h_step, hmax_models)
+        landing = until
         while t < until:
-            landing = _next_landing(events, t, until)
-            h = min(h_step, hmax_models)
+            if events:  # without events the landing is always the end time
+                landing = _next_landing(events, t, until)
+            h = h_plain
             if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
                 h = landing - t  # land exactly on the event / end time
             if n + 1 == table.shape[0]:
