@@ -46,13 +46,13 @@ from cosimstep.system import CompiledSystem
 NODES = np.array([0.0, 1 / 3, 2 / 3, 1.0])  # where inputs are sampled over a step (a cubic)
 STENCIL = 4  # stored points a partner's trajectory is interpolated from (a local cubic)
 INITIAL_GAIN = 10.0  # 1/s, until a consumer's sensitivity has been measured once
-CALIBRATION = 0.3
-"""Scale of the one-sided interpolation estimate. Consumers read a trajectory mostly through
-centred stencils (0.6 of the one-sided error for a cubic) and local errors of oscillating systems
-partly cancel over a run. How much they cancel differs by two orders of magnitude between our
-benchmarks (the pendulums cancel, the resonant problem 6 does not), and no value serves both: 0.3
-keeps the resonant case within 10× tol (measured 0.6–8.8 over problem 6 and 9) at the price of
-over-delivering on the pendulums (0.03–0.6 tol); docs/concepts.md."""
+CALIBRATION = 0.002
+"""Scale of the one-sided interpolation estimate, measured. The cubic-against-quartic difference
+at the newest interval bounds what a consumer reads there, but consumers mostly read through
+centred stencils, each consumer step mixes several partner intervals, and local errors of
+oscillating systems partly cancel over a run. 0.002 puts the delivered error (max over each
+sub-model's own points, in the tolerance's scale 1 + |x|) at 0.1–2 × tol on the mixed and
+strongly mixed pendulums and benchmark problem 6 at tol 1e-3 … 1e-5 (docs/benchmarks.md)."""
 ALIAS = 0.3  # relative slope mismatch beyond which a grey-box step counts as unresolved
 
 

@@ -32,7 +32,7 @@ def run(spec, tol, until, master=MULTIRATE):
 def test_mixed_pendulum_slow_bar_calls_less_and_error_tracks_tol(mixed) -> None:
     result = run(mixed, 1e-4, 3.0)
     assert result.success
-    assert 0.1 <= result.error.max_abs / 1e-4 <= 10.0, result.error.max_abs
+    assert 0.1 <= result.error.max_abs / 1e-4 <= 10.0, result.error.max_abs  # measured 0.25
     slow, fast = result.models["bar1"], result.models["bar2"]
     assert slow.calls < fast.calls  # thesis fig. 61: each bar its own step
     for name, stats in result.models.items():
@@ -41,6 +41,19 @@ def test_mixed_pendulum_slow_bar_calls_less_and_error_tracks_tol(mixed) -> None:
         assert result.calls[name] == stats.calls
     assert result.calls_total == sum(m.calls for m in result.models.values())
     assert len(result.models["bar1"].step_sizes) == slow.accepted
+
+
+def test_multirate_beats_the_synchronous_master_at_equal_error(mixed) -> None:
+    # issue 4 acceptance on the mixed pendulum: fewer calls than Gauss-Seidel + pc for the
+    # same measured error, the synchronous calls interpolated (log-log) between two tolerances
+    multi = run(mixed, 1e-4, 3.0)
+    sync = [run(mixed, tol, 3.0, MasterOptions("gauss-seidel", 2)) for tol in (1e-3, 1e-4)]
+    errs = np.log([r.error.max_abs for r in sync])
+    calls = np.log([r.calls_total for r in sync])
+    err = np.log(multi.error.max_abs)
+    assert errs[1] <= err <= errs[0], (multi.error.max_abs, [r.error.max_abs for r in sync])
+    same = float(np.exp(np.interp(err, errs[::-1], calls[::-1])))
+    assert same / multi.calls_total > 1.05, (same, multi.calls_total)  # measured 1.18
 
 
 def test_multirate_error_falls_with_the_tolerance(mixed) -> None:
@@ -58,8 +71,11 @@ def test_linear_problem_6_against_the_exact_solution(linear) -> None:
     ref.solve(0.0, 1.0)
     assert np.max(np.abs(ref.values(times, ["fast.u", "fast.v", "slow.w"])
                          - exact(100.0, x0, times))) < 1e-8
-    assert result.error.max_abs < 1e-3  # |w| ~ 1000: mixed tolerance 1e-4 allows ~0.1 on w
-    assert result.error.per_variable["fast.u"] < 1e-3
+    # within the mixed tolerance 1e-4 (1 + |x|) of each variable (|w| ~ 1000 allows ~0.04 on w);
+    # measured 5.0e-5 on u, 5.8e-5 on v, 1.1e-3 on w
+    size = np.max(np.abs(exact(100.0, x0, np.linspace(0.0, 1.0, 201))), axis=0)
+    for name, scale in zip(["fast.u", "fast.v", "slow.w"], 1e-4 * (1.0 + size)):
+        assert result.error.per_variable[name] < scale, (name, result.error.per_variable)
 
 
 @pytest.mark.parametrize("method", ["pchip", "hermite"])
