@@ -20,8 +20,7 @@ import numpy as np
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi3 import FMU3Slave
 
-from cosimstep.adapters.fmu import FMI3_CS
-from cosimstep.adapters.fmu_base import FmuBase, set_values
+from cosimstep.adapters.fmu_base import FMI3_CS, FmuBase, set_values
 from cosimstep.submodel import Capabilities
 
 __all__ = ["Fmu3SubModel"]

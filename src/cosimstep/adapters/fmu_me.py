@@ -39,28 +39,18 @@ the same as ``OdeSubModel.get_output_derivatives``. Other outputs have no deriva
 
 from __future__ import annotations
 
-import contextlib
 import math
 from collections.abc import Callable, Mapping
-from ctypes import byref, c_double, c_uint
+from ctypes import c_double, c_uint
 from pathlib import Path
 from typing import Any
 
-import fmpy
 import numpy as np
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import (
-    FMU2Model,
-    fmi2CallbackAllocateMemoryTYPE,
-    fmi2CallbackFreeMemoryTYPE,
-    fmi2CallbackFunctions,
-    fmi2CallbackLoggerTYPE,
-    fmi2False,
-)
+from fmpy.fmi2 import FMU2Model, fmi2False
 from scipy.integrate import solve_ivp
 
-from cosimstep.adapters.fmu import FMI2_ME
-from cosimstep.adapters.fmu_base import FmuBase, set_values
+from cosimstep.adapters.fmu_base import FMI2_ME, FmuBase, set_values
 from cosimstep.adapters.ode import INPUT_ORDER, SolveIvp, _taylor
 from cosimstep.submodel import Capabilities
 
@@ -152,22 +142,7 @@ class MeSubModel(FmuBase):
         self._vrbuf = (c_uint * max(n_in, 1))(*self._in_vr)
         self._z_key: tuple[float, bytes] | None = None
         self._z_last = np.zeros(self._nz)
-        self._callbacks = self._make_callbacks()
-
-    def _make_callbacks(self) -> fmi2CallbackFunctions:
-        def logger(env: Any, instance: bytes, status: int, category: bytes,
-                   message: bytes) -> None:
-            self._logger(status, message)
-
-        callbacks = fmi2CallbackFunctions()
-        callbacks.logger = fmi2CallbackLoggerTYPE(logger)
-        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
-        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
-        with contextlib.suppress(Exception):  # formats the C logger's variadic arguments
-            from fmpy.logging import addLoggerProxy
-
-            addLoggerProxy(byref(callbacks))
-        return callbacks
+        self._callbacks = self._fmi2_callbacks()
 
     # -- SubModel API ------------------------------------------------------------------------------
     def initialize(self, t0: float) -> None:

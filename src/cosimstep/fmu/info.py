@@ -27,7 +27,7 @@ def describe_fmu(path: str | Path) -> dict[str, Any]:
     """A JSON-ready description of an FMU; ``ValueError`` saying why a file is not one."""
     import fmpy
 
-    from cosimstep.adapters.fmu import _escapes
+    from cosimstep.adapters.fmu_base import _escapes
 
     path = Path(path)
     if not path.is_file():
