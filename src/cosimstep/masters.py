@@ -120,6 +120,11 @@ class _Watchdog:
     running call's deadline and ends the run when that call is still the one running. A
     timed-out call is abandoned exactly as before: its thread is a daemon, and if the call ever
     returns, the worker stops there (:class:`_Abandoned`) without touching anything else.
+
+    The end of a call and the decision to abandon it take one lock: otherwise a call returning
+    between the watchdog's "still the same call?" and its "abandoned" lets the worker run on
+    (stepping sub-models, writing rows) while the caller reports the timeout and terminates
+    the sub-models under it.
     """
 
     def __init__(self, timeout: float) -> None:
@@ -127,6 +132,7 @@ class _Watchdog:
         self.started = 0.0  # perf_counter() when the running call began; 0.0: none running
         self.where: tuple[int, float, float | None] = (-1, math.nan, None)  # (k, t, h)
         self.abandoned = False
+        self._lock = threading.Lock()
 
     def call(self, k: int, t: float, h: float | None, fn: Any, args: tuple) -> Any:
         self.where = (k, t, h)
@@ -134,9 +140,19 @@ class _Watchdog:
         try:
             return fn(*args)
         finally:
-            self.started = 0.0
-            if self.abandoned:
+            with self._lock:
+                self.started = 0.0
+                abandoned = self.abandoned
+            if abandoned:
                 raise _Abandoned
+
+    def _give_up(self, started: float) -> tuple[int, float, float | None] | None:
+        """Abandon the call stamped ``started`` if it is still running; its ``(k, t, h)``."""
+        with self._lock:
+            if self.started != started:
+                return None  # it ended (and the worker went on) before we decided
+            self.abandoned = True
+            return self.where
 
     def run(self, job: Any, names: Sequence[str]) -> Any:
         """``job()`` in the worker; its result or exception, or a :class:`SubModelError` for
@@ -160,9 +176,8 @@ class _Watchdog:
             while not done.wait(wait):
                 started = self.started
                 if started and time.perf_counter() - started >= self.timeout:
-                    where = self.where
-                    if self.started == started:  # still the same call
-                        self.abandoned = True
+                    where = self._give_up(started)
+                    if where is not None:
                         k, t, h = where
                         msg = f"no answer within {self.timeout:g} s (call abandoned)"
                         raise SubModelError(names[k], t, f"TimeoutError: {msg}", h) \
@@ -171,7 +186,8 @@ class _Watchdog:
                 wait = max(wait, 1e-3)
         except KeyboardInterrupt:
             # stop at the next call's return; wait for it as long as a call may take
-            self.abandoned = True
+            with self._lock:
+                self.abandoned = True
             done.wait(self.timeout)
             raise
         ok, value = box[0]

@@ -5,12 +5,16 @@ and an unconnected input."""
 
 from __future__ import annotations
 
+import threading
+import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from cosimstep import Fixed, MasterOptions, System, load_system, read_run, simulate
+from cosimstep.submodel import Port, SubModel
 from helpers import Clock, Gain, Integrator
 
 
@@ -137,3 +141,66 @@ def test_held_kernel_applies_exactly_without_extrapolation_and_feedthrough() -> 
         assert Master(held_chain().compile(), MasterOptions(master, 0)).held_kernel() is not None
         assert Master(held_chain().compile(), MasterOptions(master, 1)).held_kernel() is None
         assert Master(chain().compile(), MasterOptions(master, 0)).held_kernel() is None
+
+
+class Released(SubModel):
+    """Steps at once, except the step from ``slow_at``: it waits until ``release`` is set."""
+
+    def __init__(self, slow_at: float, release: threading.Event) -> None:
+        self.inputs = ()
+        self.outputs = (Port("time", "s", 0.0),)
+        self.slow_at, self.release = slow_at, release
+        self.t, self.steps = 0.0, 0
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        pass
+
+    def do_step(self, t: float, h: float) -> None:
+        if abs(t - self.slow_at) < 1e-9:
+            self.release.wait(10.0)
+        self.steps += 1
+        self.t = t + h
+
+    def get_outputs(self) -> np.ndarray:
+        return np.array([self.t])
+
+
+def test_call_ending_while_the_watchdog_gives_up_stops_the_run(monkeypatch) -> None:
+    """The call from t = 0.5 runs past the timeout and returns just while the watchdog decides
+    to abandon it (forced here: the watchdog's "still the same call?" lets the call return and
+    waits). The run must end there as timed out — the worker must not go on stepping (and
+    writing rows) after the run has been given up."""
+    import cosimstep.masters as masters
+
+    release = threading.Event()
+
+    class Stamp(float):
+        """A call's start time whose comparison lets the blocked call return first."""
+
+        def _first(self) -> None:
+            if not release.is_set():
+                release.set()
+                time.sleep(0.3)  # the worker's call returns and reaches its end meanwhile
+
+        def __eq__(self, other: object) -> bool:
+            self._first()
+            return float(self) == other
+
+        def __ne__(self, other: object) -> bool:
+            self._first()
+            return float(self) != other
+
+        __hash__ = float.__hash__
+
+    clock = SimpleNamespace(perf_counter=lambda: Stamp(time.perf_counter()))
+    monkeypatch.setattr(masters, "time", clock)
+    model = Released(0.5, release)
+    s = System()
+    s.add("clock", model).add("sink", Integrator(unit="s"))
+    s.connect("clock.time", "sink.u")
+    result = simulate(s, 100.0, Fixed(0.1), MasterOptions("jacobi", 0, call_timeout=0.2))
+    steps_at_return = model.steps
+    time.sleep(0.3)
+    assert result.status == "failed" and "no answer within 0.2 s" in result.message
+    assert result.steps_accepted == 5 and result.t_end == 0.5
+    assert model.steps == steps_at_return <= 6  # nothing stepped after the run ended
