@@ -17,6 +17,7 @@ import math
 import queue
 import threading
 import time
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -78,33 +79,46 @@ class MasterOptions:
 
 
 class _TimedCaller:
-    """Runs calls in one daemon worker thread so a hanging sub-model cannot hang the master."""
+    """Runs calls in one daemon worker thread so a hanging sub-model cannot hang the master.
+
+    The worker starts with the first call (a lean fixed-step run is watched by a
+    :class:`_Watchdog` instead and never calls) and ends when this object is collected, so runs
+    do not leave idle threads behind; one still inside an abandoned call ends when it returns.
+    """
 
     def __init__(self, timeout: float) -> None:
         self.timeout = timeout
-        self._jobs: queue.Queue = queue.Queue()
-        self._worker = threading.Thread(target=self._loop, daemon=True)
-        self._worker.start()
+        self._jobs: queue.Queue | None = None
 
-    def _loop(self) -> None:
-        while True:
-            fn, args, box, done = self._jobs.get()
-            try:
-                box.append((True, fn(*args)))
-            except BaseException as exc:
-                box.append((False, exc))
-            done.set()
+    def _start(self) -> queue.Queue:
+        jobs: queue.Queue = queue.Queue()
+        threading.Thread(target=_serve, args=(jobs,), daemon=True).start()
+        weakref.finalize(self, jobs.put, None)
+        self._jobs = jobs
+        return jobs
 
     def __call__(self, fn: Any, *args: Any) -> Any:
         box: list = []
         done = threading.Event()
-        self._jobs.put((fn, args, box, done))
+        (self._jobs or self._start()).put((fn, args, box, done))
         if not done.wait(self.timeout):
             raise TimeoutError(f"no answer within {self.timeout:g} s (call abandoned)")
         ok, value = box[0]
         if not ok:
             raise value
         return value
+
+
+def _serve(jobs: queue.Queue) -> None:
+    """A :class:`_TimedCaller`'s worker: runs jobs until it gets ``None``. (Not a method: the
+    thread must not keep its caller alive.)"""
+    while (job := jobs.get()) is not None:
+        fn, args, box, done = job
+        try:
+            box.append((True, fn(*args)))
+        except BaseException as exc:
+            box.append((False, exc))
+        done.set()
 
 
 class _Abandoned(BaseException):

@@ -231,13 +231,16 @@ class _FixedLoop:
     counts, stored rows and errors; tests/orchestration/test_lean_fixed_step.py).
 
     Points go into a preallocated table (grown in chunks if time events add steps), the clock's
-    compensated sum is inlined, the store receives rows in batches (its commit interval is
-    unchanged) and the progress bar is updated every :attr:`BATCH` steps. With inputs held and
-    no feedthrough, :class:`~cosimstep.masters._HeldKernel` does the master's step; otherwise
-    :meth:`Master.step` is called with the history the controller loop would pass.
+    compensated sum is inlined, and the store and the progress bar receive the new steps in
+    batches: at most :attr:`BATCH` steps, and as many as took about :attr:`PUBLISH_SECONDS`
+    when steps are slow, so rows still reach the store's commit (every 0.5 s) while a run of
+    slow sub-models goes on — what a crash keeps — without a clock read per step. With inputs
+    held and no feedthrough, :class:`~cosimstep.masters._HeldKernel` does the master's step;
+    otherwise :meth:`Master.step` is called with the history the controller loop would pass.
     """
 
-    BATCH = 256  # steps between store writes and progress updates
+    BATCH = 256  # at most this many steps between store writes and progress updates
+    PUBLISH_SECONDS = 0.1  # batch size: the steps that took about this long
 
     def __init__(self, runner: Master, step: float, t0: float, until: float,
                  events: list[float], sink: Store | None, bar: Any) -> None:
@@ -257,6 +260,7 @@ class _FixedLoop:
         self.kernel = None
         self._stored = 0  # points handed to the store so far
         self._shown = 0  # steps shown on the progress bar so far
+        self._published = (0, time.perf_counter())  # (n, time) of the last publication
 
     def _grow(self) -> None:
         rows = 2 * self.times.shape[0]
@@ -281,6 +285,8 @@ class _FixedLoop:
         flat, base = table.reshape(-1), table.ctypes.data
         h_plain = min(h_step, hmax_models)
         landing = until
+        self._published = (0, time.perf_counter())
+        due = 1  # the next step to publish after (then as _publish says)
         while t < until:
             if events:  # without events the landing is always the end time
                 landing = _next_landing(events, t, until)
@@ -311,11 +317,12 @@ class _FixedLoop:
             if t == landing and t < until:
                 segment = n
                 runner.restart()
-            if n % self.BATCH == 0:
-                self._publish()
+            if n == due:
+                due = n + self._publish()
 
-    def _publish(self) -> None:
-        """Hand the points not yet stored to the store, and the steps to the progress bar."""
+    def _publish(self) -> int:
+        """Hand the points not yet stored to the store, and the steps to the progress bar;
+        return how many steps to run until the next publication."""
         n = self.n
         if self.sink is not None and n >= self._stored:
             first = self._stored
@@ -329,6 +336,12 @@ class _FixedLoop:
         if self.bar is not None and n > self._shown:
             self.bar.update(float(np.sum(self.hs[self._shown:n])))
             self._shown = n
+        last_n, last_time = self._published
+        now = time.perf_counter()
+        self._published = (n, now)
+        per_step = (now - last_time) / max(n - last_n, 1)
+        return max(1, min(self.BATCH, int(self.PUBLISH_SECONDS / per_step))) if per_step > 0 \
+            else self.BATCH
 
     def finish(self) -> None:
         if self.kernel is not None:
@@ -453,10 +466,12 @@ def simulate(
         status, message, failure = \
             "interrupted", f"interrupted by the user at t = {loop.t:.9g}", exc
     finally:
-        loop.finish()
-        if bar is not None:
-            bar.close()
-        runner.terminate()
+        try:
+            loop.finish()  # hands the last rows to the store, which may fail (disk full)
+        finally:
+            if bar is not None:
+                bar.close()
+            runner.terminate()  # frees FMU instances and their unpacked folders in any case
     wall = time.perf_counter() - wall0
     t = loop.t
     times, values, steps = loop.results()

@@ -5,6 +5,8 @@ and an unconnected input."""
 
 from __future__ import annotations
 
+import gc
+import sqlite3
 import threading
 import time
 from pathlib import Path
@@ -204,3 +206,79 @@ def test_call_ending_while_the_watchdog_gives_up_stops_the_run(monkeypatch) -> N
     assert result.status == "failed" and "no answer within 0.2 s" in result.message
     assert result.steps_accepted == 5 and result.t_end == 0.5
     assert model.steps == steps_at_return <= 6  # nothing stepped after the run ended
+
+
+class Probe(SubModel):
+    """Takes 10 ms a step; at ``probe_at`` counts the points already committed to ``db``."""
+
+    def __init__(self, db: Path, probe_at: float) -> None:
+        self.inputs = ()
+        self.outputs = (Port("time", "s", 0.0),)
+        self.db, self.probe_at = db, probe_at
+        self.t, self.committed = 0.0, None
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        pass
+
+    def do_step(self, t: float, h: float) -> None:
+        time.sleep(0.01)
+        if abs(t - self.probe_at) < 1e-9:
+            with sqlite3.connect(self.db) as db:
+                self.committed = db.execute("SELECT COUNT(*) FROM point").fetchone()[0]
+        self.t = t + h
+
+    def get_outputs(self) -> np.ndarray:
+        return np.array([self.t])
+
+
+@pytest.mark.parametrize("controller", [Fixed, GeneralFixed])
+def test_slow_steps_reach_the_store_while_the_run_goes_on(tmp_path: Path, controller) -> None:
+    """The store commits every 0.5 s what it was given; the lean loop hands it rows in batches,
+    which must be small enough with slow steps (was: 256 steps, here 2.6 s, so a crash after
+    1 s kept nothing)."""
+    db = tmp_path / "slow.db"
+    probe = Probe(db, 1.0)
+    s = System()
+    s.add("probe", probe).add("sink", Integrator(unit="s"))
+    s.connect("probe.time", "sink.u")
+    result = simulate(s, 1.2, controller(0.01), MasterOptions("jacobi", 0), store=db)
+    assert result.success
+    assert probe.committed is not None and probe.committed >= 20  # ~0.5 s of steps or more
+
+
+@pytest.mark.parametrize("controller", [Fixed, GeneralFixed])
+def test_runs_with_call_timeout_leave_no_threads_behind(controller) -> None:
+    """Each run with call_timeout used to leave its call worker waiting forever (the lean loop
+    started one and never used it)."""
+    before = set(threading.enumerate())
+    for _ in range(3):
+        options = MasterOptions("jacobi", 0, call_timeout=5.0)
+        assert simulate(held_chain(), 0.5, controller(0.05), options).success
+    gc.collect()
+    deadline = time.monotonic() + 5.0
+    while set(threading.enumerate()) - before and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not set(threading.enumerate()) - before
+
+
+def test_sub_models_are_terminated_when_the_last_rows_cannot_be_stored(
+        tmp_path: Path, monkeypatch) -> None:
+    """The lean loop hands its last rows to the store after the loop; if that fails, the
+    sub-models (FMU instances, unpacked folders) must still be terminated."""
+    from cosimstep.store import Store
+
+    terminated = []
+
+    class Tracked(Integrator):
+        def terminate(self) -> None:
+            terminated.append(True)
+
+    def full(*args, **kwargs) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Store, "add_points", full)
+    s = System()
+    s.add("a", Tracked())
+    with pytest.raises(OSError, match="disk full"):
+        simulate(s, 0.5, Fixed(0.1), MasterOptions("jacobi", 0), store=tmp_path / "r.db")
+    assert terminated
