@@ -217,7 +217,7 @@ class _ControllerLoop:
             h = attempt.h_next
 
     def finish(self) -> None:
-        pass
+        """Nothing to hand on: every point went to the store as it was accepted."""
 
     def results(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ctx = self.ctx

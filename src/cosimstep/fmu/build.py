@@ -83,10 +83,6 @@ class Recipe:
     def model_identifier(self) -> str:
         return self._identity()[1]
 
-    @property
-    def fmi_version(self) -> str:
-        return self._identity()[0]
-
     def _identity(self) -> tuple[str, str]:
         """FMI version and model identifier (co-simulation first, else model exchange)."""
         try:

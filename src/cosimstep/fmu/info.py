@@ -101,8 +101,7 @@ def _runs_as(path: Path) -> str:
         md = check_fmu(path, SUPPORTED)
     except ValueError as exc:
         return f"not runnable: {str(exc).split(': ', 1)[-1]}"
-    chosen = fmu_interface(md)
-    return _ADAPTERS[chosen] if chosen is not None else "not runnable"
+    return _ADAPTERS[fmu_interface(md)]  # check_fmu accepted it: one of SUPPORTED
 
 
 def _number(value: Any) -> Any:
