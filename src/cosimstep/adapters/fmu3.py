@@ -62,13 +62,8 @@ class Fmu3SubModel(FmuBase):
     def initialize(self, t0: float) -> None:
         if self._fmu is not None:
             self.terminate()
-        md = self.model_description
         try:
-            unzipped = self._unpack()
-            self._fmu = FMU3Slave(guid=md.guid, unzipDirectory=unzipped,
-                                  modelIdentifier=self.interface.modelIdentifier,
-                                  instanceName=self.name)
-            fmu = self._fmu
+            fmu = self._load(FMU3Slave)
             fmu.instantiate(logMessage=lambda env, status, category, message:
                             self._logger(status, message))
             set_values(fmu, self._start_values(inputs=False), "3.0")

@@ -165,7 +165,7 @@ class FmuBase(SubModel):
     """Model description, ports, start values, errors, unpacking and FMU states of one FMU.
 
     Subclasses set :attr:`SUPPORTED` and :attr:`CALL_PREFIX`, create the FMPy object in
-    ``initialize`` (after :meth:`_unpack`; on failure ``raise self._fail_initialization(exc)``)
+    ``initialize`` (:meth:`_load`; on failure ``raise self._fail_initialization(exc)``)
     and implement the step, state and value calls.
     """
 
@@ -297,6 +297,13 @@ class FmuBase(SubModel):
         # test FMUs unpacked in 1.7 instead of 3.1 ms (and there is less to remove)
         fmpy.extract(str(self.path), unzipdir=str(self._unzipped), include=_needed)
         return str(self._unzipped)
+
+    def _load(self, fmu_class: type) -> Any:
+        """Unpack the archive and load the FMU's library: the FMPy object, not instantiated."""
+        self._fmu = fmu_class(guid=self.model_description.guid, unzipDirectory=self._unpack(),
+                              modelIdentifier=self.interface.modelIdentifier,
+                              instanceName=self.name)
+        return self._fmu
 
     def _start_values(self, inputs: bool) -> list[tuple[ModelVariable, Any]]:
         """Overrides to set before initialization (``inputs=False``) or inside it (inputs)."""

@@ -148,13 +148,8 @@ class MeSubModel(FmuBase):
     def initialize(self, t0: float) -> None:
         if self._fmu is not None:
             self.terminate()
-        md = self.model_description
         try:
-            unzipped = self._unpack()
-            self._fmu = FMU2Model(guid=md.guid, unzipDirectory=unzipped,
-                                  modelIdentifier=self.interface.modelIdentifier,
-                                  instanceName=self.name)
-            fmu = self._fmu
+            fmu = self._load(FMU2Model)
             fmu.instantiate(callbacks=self._callbacks)
             fmu.setupExperiment(tolerance=self.solver.rtol, startTime=t0)
             set_values(fmu, self._start_values(inputs=False), "2.0")
