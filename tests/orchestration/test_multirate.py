@@ -32,7 +32,8 @@ def run(spec, tol, until, master=MULTIRATE):
 def test_mixed_pendulum_slow_bar_calls_less_and_error_tracks_tol(mixed) -> None:
     result = run(mixed, 1e-4, 3.0)
     assert result.success
-    assert 0.1 <= result.error.max_abs / 1e-4 <= 10.0, result.error.max_abs  # measured 0.25
+    # the calibration keeps problem 9's extremes within 10x tol, so this mild case over-delivers
+    assert 0.01 <= result.error.max_abs / 1e-4 <= 10.0, result.error.max_abs  # measured 0.044
     slow, fast = result.models["bar1"], result.models["bar2"]
     assert slow.calls < fast.calls  # thesis fig. 61: each bar its own step
     for name, stats in result.models.items():
@@ -47,13 +48,13 @@ def test_multirate_beats_the_synchronous_master_at_equal_error(mixed) -> None:
     # issue 4 acceptance on the mixed pendulum: fewer calls than Gauss-Seidel + pc for the
     # same measured error, the synchronous calls interpolated (log-log) between two tolerances
     multi = run(mixed, 1e-4, 3.0)
-    sync = [run(mixed, tol, 3.0, MasterOptions("gauss-seidel", 2)) for tol in (1e-3, 1e-4)]
+    sync = [run(mixed, tol, 3.0, MasterOptions("gauss-seidel", 2)) for tol in (1e-4, 1e-5)]
     errs = np.log([r.error.max_abs for r in sync])
     calls = np.log([r.calls_total for r in sync])
     err = np.log(multi.error.max_abs)
     assert errs[1] <= err <= errs[0], (multi.error.max_abs, [r.error.max_abs for r in sync])
     same = float(np.exp(np.interp(err, errs[::-1], calls[::-1])))
-    assert same / multi.calls_total > 1.05, (same, multi.calls_total)  # measured 1.18
+    assert same / multi.calls_total > 1.05, (same, multi.calls_total)  # measured 1.32
 
 
 def test_multirate_error_falls_with_the_tolerance(mixed) -> None:
