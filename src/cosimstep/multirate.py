@@ -52,8 +52,8 @@ at the newest interval overstates what a consumer reads there (consumers mostly 
 centred stencils, and local errors of oscillating systems partly cancel), but the estimate does
 not see what readers of a partner's provisional values lose (docs/concepts.md), which grows with
 the time-scale ratio. 0.002 put the mixed pendulums and problem 6 at 0.1–1.3 × tol but the λ = 30
-pendulum and λ = 1000 problem 6 at 39× and 24×; 0.02 keeps all of benchmark problem 9 within 10×
-tol (docs/benchmarks.md) and over-delivers on the mildly mixed cases."""
+pendulum and λ = 1000 problem 6 at 39× and 24×; 0.02 brings them to 10.3× and 1.2× (the rest of
+problem 9 at 0.04–0.7×, docs/benchmarks.md) and over-delivers on the mildly mixed cases."""
 ALIAS = 0.3  # relative slope mismatch beyond which a grey-box step counts as unresolved
 
 
