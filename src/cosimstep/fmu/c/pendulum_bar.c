@@ -18,6 +18,7 @@
 #include <string.h>
 
 #include "fmi2.h"
+#include "pendulum_physics.h"
 
 #if !defined(BAR) || (BAR != 1 && BAR != 2)
 #error "compile with -DBAR=1 (upper bar) or -DBAR=2 (lower bar)"
@@ -89,30 +90,11 @@ static void log_status(const Instance *inst, fmi2Status status, const char *fmt,
 
 #define FAIL(inst, ...) (log_status((inst), fmi2Error, __VA_ARGS__), fmi2Error)
 
-/* Angular acceleration of this bar (Lagrange equations of the chain, explicit 2x2 solve). */
-static double acceleration(const double *v, double t1, double t2, double w1, double w2) {
-    const double l1 = v[VR_L1], l2 = v[VR_L2], g = v[VR_G];
-    const double mu0 = v[VR_M1] + v[VR_M2], mu1 = v[VR_M2];
-    const double c = cos(t1 - t2), s = sin(t1 - t2), s1 = sin(t1), s2 = sin(t2);
-    const double a11 = mu0 * l1 * l1, a12 = mu1 * l1 * l2 * c;
-    const double a22 = mu1 * l2 * l2;
-    const double f1 = -mu1 * l1 * l2 * s * w2 * w2 - mu0 * g * l1 * s1;
-    const double f2 = mu1 * l1 * l2 * s * w1 * w1 - mu1 * g * l2 * s2;
-    const double det = a11 * a22 - a12 * a12;
-#if BAR == 1
-    return (f1 * a22 - a12 * f2) / det;
-#else
-    return (a11 * f2 - a12 * f1) / det;
-#endif
-}
-
+/* This bar's dx/dt from the chain parameters stored in v (the physics is shared with the
+ * FMI 3.0 and model-exchange bars). */
 static void rhs(const double *v, const double x[2], const double u[2], double dx[2]) {
-    dx[0] = x[1];
-#if BAR == 1
-    dx[1] = acceleration(v, x[0], u[0], x[1], u[1]);
-#else
-    dx[1] = acceleration(v, u[0], x[0], u[1], x[1]);
-#endif
+    const PendulumParameters p = {v[VR_M1], v[VR_M2], v[VR_L1], v[VR_L2], v[VR_G]};
+    pendulum_rhs(&p, x, u, dx);
 }
 
 /* out = value + sum_{k=1..order} d[k-1] dt^k / k!, accumulated as OdeSubModel's _taylor. */

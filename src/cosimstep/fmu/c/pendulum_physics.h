@@ -1,6 +1,5 @@
-/* The physics of one bar of the split double pendulum, shared by cosimstep's FMI 3.0
- * co-simulation and FMI 2.0 model-exchange pendulum FMUs (pendulum_bar.c has its own copy for
- * FMI 2.0 co-simulation).
+/* The physics of one bar of the split double pendulum, shared by all of cosimstep's pendulum
+ * FMUs (FMI 2.0 and 3.0 co-simulation, FMI 2.0 model exchange).
  *
  * Include after defining BAR (1: upper bar, 2: lower bar). The expressions keep the evaluation
  * order of cosimstep.models.pendulum._double_accelerations, so with -ffp-contract=off the FMUs
