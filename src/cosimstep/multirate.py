@@ -183,13 +183,12 @@ class Multirate:
         coef = taylor_coefficients(pts, vals[:, None], float(at[0]), len(pts) - 1)
         return np.array([evaluate(coef, float(s - at[0]))[0] for s in at]), beyond
 
-    def inputs_over(self, k: int, t: float, h: float,
-                    nodes: np.ndarray = NODES) -> tuple[np.ndarray, bool]:
-        """Model ``k``'s inputs at ``t + nodes·h`` (rows) and whether any were extrapolated."""
+    def inputs_over(self, k: int, t: float, h: float) -> tuple[np.ndarray, bool]:
+        """Model ``k``'s inputs at ``t + NODES·h`` (rows) and whether any were extrapolated."""
         system = self.system
         src, a, b = np.asarray(system.src[k], dtype=int), system.a[k], system.b[k]
-        at = t + nodes * h
-        out = np.empty((len(nodes), len(src)))
+        at = t + NODES * h
+        out = np.empty((len(NODES), len(src)))
         extrapolated = False
         for i, j in enumerate(src):
             if a[i] == 0.0:
