@@ -1,4 +1,4 @@
-"""FMI 2.0 co-simulation FMUs as sub-models, through FMPy (issue 5).
+"""FMI 2.0 co-simulation FMUs as sub-models (issue 5).
 
 :class:`FmuSubModel` runs an FMI 2.0 co-simulation FMU: its Real inputs and outputs become ports
 (names, units and start values from ``modelDescription.xml``), start values and parameters can be
@@ -8,7 +8,10 @@ input derivatives from ``canInterpolateInputs``. What it shares with the other F
 (model description, ports, start values, errors, unpacking, FMU states) is
 :class:`~cosimstep.adapters.fmu_base.FmuBase`; the calls of a step go through its own ctypes
 prototypes on preallocated arrays (:meth:`FmuSubModel._bind`), and a master may call them
-directly (:class:`DirectIO`).
+directly (:class:`DirectIO`). The library is loaded and instantiated by
+:class:`~cosimstep.adapters.fmi2_library.Fmi2Slave` (ctypes prototypes made on first use, instead
+of FMPy's ``FMU2Slave``, which builds all of them from annotations on every load); the model
+description is read by FMPy.
 
 An FMU is checked before anything is unpacked (:func:`check_fmu`): a file that is not a zip
 archive, has no ``modelDescription.xml``, has no binary for this platform, is not of a version and
@@ -28,8 +31,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fmpy.fmi2 import FMU2Slave
 
+from cosimstep.adapters.fmi2_library import Fmi2Slave
 from cosimstep.adapters.fmu_base import (
     FMI2_CS,
     FMI2_ME,
@@ -125,7 +128,7 @@ class FmuSubModel(FmuBase):
         if self._fmu is not None:
             self.terminate()
         try:
-            fmu = self._load(FMU2Slave)
+            fmu = self._load(Fmi2Slave)
             fmu.instantiate(callbacks=self._callbacks)
             fmu.setupExperiment(tolerance=self.tolerance, startTime=t0)
             set_values(fmu, self._start_values(inputs=False), "2.0")
@@ -138,14 +141,14 @@ class FmuSubModel(FmuBase):
         self._initialized = True
         self._derivatives_set = self._derivatives_stale = False
 
-    def _bind(self, fmu: FMU2Slave) -> None:
+    def _bind(self, fmu: Fmi2Slave) -> None:
         """Our own ctypes prototypes of the FMI functions a step calls.
 
-        FMPy's methods convert Python lists to new C arrays and check the status in Python on
-        every call (about 10 µs per step of two FMUs, more than the FMUs' own work here); these
-        take the addresses of the preallocated arrays above and return the status, which is
-        checked with one comparison. ``dll[name]`` gives a new function object, so FMPy's own
-        prototypes of the same functions stay as they were.
+        The loader's convenience methods (like FMPy's) convert Python lists to new C arrays and
+        check the status in Python on every call (about 10 µs per step of two FMUs, more than the
+        FMUs' own work here); these take the addresses of the preallocated arrays above and
+        return the status, which is checked with one comparison. ``dll[name]`` gives a new
+        function object, so the loader's own prototypes of the same functions stay as they were.
         """
         vp, size = c_void_p, c_size_t
         signatures = {"fmi2SetReal": (vp, vp, size, vp), "fmi2GetReal": (vp, vp, size, vp),

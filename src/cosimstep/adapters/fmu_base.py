@@ -17,6 +17,7 @@ import contextlib
 import posixpath
 import shutil
 import tempfile
+import threading
 import weakref
 import zipfile
 from collections import deque
@@ -33,7 +34,7 @@ from fmpy.fmi2 import (
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
 )
-from fmpy.model_description import ModelDescription, ModelVariable
+from fmpy.model_description import ModelDescription, ModelVariable, ValidationError
 
 from cosimstep.submodel import Port, SubModel
 
@@ -97,16 +98,18 @@ def check_fmu(path: str | Path,
     try:
         with zipfile.ZipFile(path) as zf:
             names = zf.namelist()
+            xml = zf.read("modelDescription.xml") if "modelDescription.xml" in names else None
     except (OSError, zipfile.BadZipFile) as exc:
         raise refuse(f"corrupt zip archive ({exc})") from exc
     for name in names:
         if _escapes(name):
             raise refuse(f"archive entry '{name}' would unpack outside the FMU's folder "
                          "(absolute path or '..'); refusing to unpack it")
-    if "modelDescription.xml" not in names:
+    if xml is None:
         raise refuse("no modelDescription.xml at the top of the archive")
     try:
-        md = fmpy.read_model_description(str(path), validate=True)
+        _validate(xml)
+        md = fmpy.read_model_description(str(path), validate=False)
     except Exception as exc:  # FMPy raises plain Exceptions for invalid descriptions
         raise refuse(f"invalid modelDescription.xml: {exc}") from exc
     if md.fmiVersion == "1.0":
@@ -131,6 +134,38 @@ def check_fmu(path: str | Path,
         raise refuse(f"no binary for this platform ({binary} is missing; it has binaries for: "
                      f"{', '.join(found) or 'none'})")
     return md
+
+
+_SCHEMAS: dict[str, Any] = {}
+_SCHEMA_LOCK = threading.Lock()
+
+
+def _validate(xml: bytes) -> None:
+    """Validate a model description against FMPy's XML schema of its FMI version.
+
+    What ``fmpy.read_model_description(validate=True)`` does, with each schema compiled once per
+    process instead of on every call (about 2–3 ms of the 4 ms it took per FMU). Raises FMPy's
+    ``ValidationError`` listing the problems; versions FMPy does not know are left to its reader.
+    """
+    from lxml import etree
+
+    root = etree.fromstring(xml)
+    version = root.get("fmiVersion") or ""
+    file = {"1.0": ("fmi1", "fmiModelDescription.xsd"),
+            "2.0": ("fmi2", "fmi2ModelDescription.xsd")}.get(
+        version, ("fmi3", "fmi3ModelDescription.xsd") if version.startswith("3.") else None)
+    if file is None:
+        return
+    # a schema's error log belongs to the schema object: one validation at a time
+    with _SCHEMA_LOCK:
+        schema = _SCHEMAS.get(file[0])
+        if schema is None:
+            schema = _SCHEMAS[file[0]] = etree.XMLSchema(
+                file=str(Path(fmpy.__file__).parent / "schema" / file[0] / file[1]))
+        if not schema.validate(root):
+            problems = [f"{e.level_name} (line {e.line}, column {e.column}): {e.message}"
+                        for e in schema.error_log]
+            raise ValidationError(problems)
 
 
 def _needed(name: str) -> bool:
@@ -164,7 +199,8 @@ class _SavedState:
 class FmuBase(SubModel):
     """Model description, ports, start values, errors, unpacking and FMU states of one FMU.
 
-    Subclasses set :attr:`SUPPORTED` and :attr:`CALL_PREFIX`, create the FMPy object in
+    Subclasses set :attr:`SUPPORTED` and :attr:`CALL_PREFIX`, create the library object (FMPy's, or
+    :class:`~cosimstep.adapters.fmi2_library.Fmi2Slave`) in
     ``initialize`` (:meth:`_load`; on failure ``raise self._fail_initialization(exc)``)
     and implement the step, state and value calls.
     """
@@ -299,7 +335,8 @@ class FmuBase(SubModel):
         return str(self._unzipped)
 
     def _load(self, fmu_class: type) -> Any:
-        """Unpack the archive and load the FMU's library: the FMPy object, not instantiated."""
+        """Unpack the archive and load the FMU's library: the ``fmu_class`` object, not
+        instantiated."""
         self._fmu = fmu_class(guid=self.model_description.guid, unzipDirectory=self._unpack(),
                               modelIdentifier=self.interface.modelIdentifier,
                               instanceName=self.name)
