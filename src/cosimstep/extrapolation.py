@@ -42,9 +42,48 @@ def taylor_coefficients(times: Sequence[float], values: np.ndarray, t0: float,
     out = np.zeros((order + 1, values.shape[1]))
     rows = values[-n_points:]
     s = [float(ti) - t0 for ti in times[-n_points:]]
-    # Lagrange form: derivative k at t0 of the basis polynomial of point i is
-    # k! * coef_k(prod_{j != i} (x - s_j)) / prod_{j != i} (s_i - s_j). Pure-Python floats are
-    # much faster than a linear solve for the <= 3 points used here (this runs every step).
+    out[:n_points] = np.array(_weights(s)) @ rows
+    return out
+
+
+def _weights(s: list[float]) -> list[list[float]]:
+    """``weights[k][i]``: derivative ``k`` at 0 of the Lagrange basis polynomial of point ``i``.
+
+    Lagrange form: derivative k at 0 of the basis polynomial of point i is
+    k! * coef_k(prod_{j != i} (x - s_j)) / prod_{j != i} (s_i - s_j). Pure-Python floats are
+    much faster than a linear solve for the <= 3 points used here (this runs every step). One,
+    two and three points (extrapolation orders 0-2) are written out: the same floating-point
+    operations in the same order as :func:`_weights_loop` (bit-identical results, compared in
+    tests/test_extrapolation.py), without its list building, which cost about half of a
+    Gauss-Seidel step of two small FMUs at order 2.
+    """
+    n = len(s)
+    if n == 3:
+        s0, s1, s2 = s
+        return _three(s0, s1, s2)
+    if n == 2:
+        s0, s1 = s
+        d0, d1 = 1.0 * (s0 - s1), 1.0 * (s1 - s0)
+        return [[(0.0 - s1 * 1.0) / d0, (0.0 - s0 * 1.0) / d1],
+                [(1.0 - s1 * 0.0) / d0, (1.0 - s0 * 0.0) / d1]]
+    if n == 1:
+        return [[1.0 / 1.0]]
+    return _weights_loop(s)
+
+
+def _three(s0: float, s1: float, s2: float) -> list[list[float]]:
+    columns = []
+    for si, sa, sb in ((s0, s1, s2), (s1, s0, s2), (s2, s0, s1)):
+        p0, p1 = 0.0 - sa * 1.0, 1.0 - sa * 0.0  # (x - sa)
+        q0, q1, q2 = 0.0 - sb * p0, p0 - sb * p1, p1 - sb * 0.0  # times (x - sb)
+        d = 1.0 * (si - sa) * (si - sb)
+        columns.append((q0 / d, q1 / d, q2 * 2 / d))
+    return [[c[k] for c in columns] for k in range(3)]
+
+
+def _weights_loop(s: list[float]) -> list[list[float]]:
+    """:func:`_weights` for any number of points."""
+    n_points = len(s)
     weights = [[0.0] * n_points for _ in range(n_points)]  # weights[k][i]
     for i in range(n_points):
         poly = [1.0]
@@ -57,8 +96,7 @@ def taylor_coefficients(times: Sequence[float], values: np.ndarray, t0: float,
                 denominator *= s[i] - s[j]
         for k in range(n_points):
             weights[k][i] = poly[k] * math.factorial(k) / denominator
-    out[:n_points] = np.array(weights) @ rows
-    return out
+    return weights
 
 
 def evaluate(coefficients: np.ndarray, dt: float) -> np.ndarray:
