@@ -107,3 +107,21 @@ def evaluate(coefficients: np.ndarray, dt: float) -> np.ndarray:
         term *= dt / k
         result = result + term * coefficients[k]
     return result
+
+
+def midstep_weights(order: int, through_end: bool = False) -> list[float]:
+    """Weights of the last ``order + 1`` values (oldest first) whose sum is the input
+    polynomial's value at mid-step, when the points are one uniform step apart.
+
+    ``through_end=False``: the polynomial through the points at ``t - order·h, …, t``
+    (extrapolation, Jacobi); ``True``: through ``t - (order - 1)·h, …, t`` and ``t + h``
+    (interpolation through a fresh value, Gauss–Seidel). Evaluated at ``t + h/2``: what a
+    sub-model without input derivatives receives (:meth:`cosimstep.masters.Master.step`). The
+    weights do not depend on ``h`` and are exact binary fractions (order 2, Jacobi: 3/8, −5/4,
+    15/8; Gauss–Seidel: −1/8, 3/4, 3/8); they sum to 1.
+    """
+    first = 1 - order if through_end else -order
+    s = [float(i) for i in range(first, first + order + 1)]
+    w = _weights(s)
+    return [sum(w[k][i] * 0.5**k / math.factorial(k) for k in range(order + 1))
+            for i in range(order + 1)]

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from cosimstep.errors import SubModelError
-from cosimstep.extrapolation import evaluate, taylor_coefficients
+from cosimstep.extrapolation import evaluate, midstep_weights, taylor_coefficients
 from cosimstep.system import CompiledSystem
 
 MASTERS = ("jacobi", "gauss-seidel", "multirate")
@@ -399,6 +399,26 @@ class Master:
             return None
         return _HeldKernel(self)
 
+    def extrapolating_kernel(self) -> _ExtrapolatingKernel | None:
+        """The lean form of :meth:`step` at extrapolation order 1 or 2 on uniform steps, or
+        ``None``.
+
+        It applies when no sub-model has direct feedthrough or takes input derivatives: every
+        input is then the input polynomial's value at mid-step, which on uniform steps is a
+        fixed linear combination of the last stored rows (and, under Gauss–Seidel, of the new
+        one; see :func:`~cosimstep.extrapolation.midstep_weights`). The caller uses it only for
+        steps as long as the ``order`` steps before them, within one segment (see
+        :class:`_ExtrapolatingKernel`).
+        """
+        if self.options.extrapolation == 0 or self.options.name not in ("jacobi",
+                                                                         "gauss-seidel"):
+            return None
+        if any(m.capabilities.has_direct_feedthrough for m in self.system.models):
+            return None
+        if any(self._deriv_order):
+            return None
+        return _ExtrapolatingKernel(self)
+
     def _settle_feedthrough(self, t: float, y: np.ndarray) -> None:
         """Refresh direct-feedthrough outputs from inputs at ``t`` (no step, no call)."""
         system = self.system
@@ -535,6 +555,132 @@ class _HeldKernel:
             else:
                 master = self.master
                 x = flat[gather + row]
+                u = x if identity else a * x + b
+                calls[k] += 1
+                start = clock()
+                master._guard(k, t, model.set_inputs, u, h=h)
+                master._guard(k, t, model.do_step, t, h, h=h)
+                spent[k] += clock() - start
+                flat[row + m + out.start:row + m + out.stop] = master._outputs(k, t, h)
+        new = flat[row + m:row + 2 * m]
+        if not math.isfinite(sum(new.tolist())):  # NaN or inf somewhere (or a sum overflow)
+            self.master._check_finite(range(len(self.plan)), t, new, h)
+
+    def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
+        raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc
+
+
+class _ExtrapolatingKernel:
+    """:meth:`Master.step` at extrapolation order ``p`` = 1 or 2 on uniform steps, without
+    feedthrough or input derivatives, for a row-major table.
+
+    Under those conditions :meth:`Master.step` gives every model the value at ``t + h/2`` of a
+    polynomial through the last ``p + 1`` stored rows (Jacobi, and Gauss–Seidel sources that
+    step later) or through the last ``p`` rows and the new one (Gauss–Seidel sources already
+    stepped). With equal steps that value is a fixed weighted sum of those rows
+    (:func:`~cosimstep.extrapolation.midstep_weights`), so the step needs no Taylor
+    coefficients: the weights and the routing are fixed once here. A model reading one
+    contiguous run of columns with one kind of source takes a dot product of the weights with
+    that block of the table; otherwise its inputs are gathered by integer index arrays.
+
+    The caller uses it only where :meth:`Master.step` would see ``p + 1`` equally spaced points:
+    from the ``p``-th step of a segment (the general step does the first ``p``, where the order
+    drops and grey-box slopes may enter), and for steps as long as the ones before. The calls,
+    their order, the counts, the stored rows and the errors are those of :meth:`Master.step`;
+    the values agree to rounding (the sums are taken in another order;
+    tests/orchestration/test_lean_fixed_step.py measures the difference).
+    """
+
+    def __init__(self, master: Master) -> None:
+        self.master = master
+        system = master.system
+        self.names = system.names
+        self.order = p = master.options.extrapolation
+        m = self.m = system.n_outputs
+        owner = np.empty(m, dtype=int)
+        for k, sl in enumerate(system.output_slices):
+            owner[sl] = k
+        rank = {k: i for i, k in enumerate(master.sequence)}
+        gauss_seidel = master.options.name == "gauss-seidel"
+        weights = (np.array(midstep_weights(p, False)), np.array(midstep_weights(p, True)))
+        self.calls = [0] * len(system.models)  # added to the master's counts by :meth:`sync`
+        self.time = [0.0] * len(system.models)
+        watched = master._watch is not None or master._call is not None
+        self._flat: np.ndarray | None = None  # the table as given, and as rows
+        self._rows = np.empty((0, m))
+        self.plan = []
+        for k in master.sequence:
+            model = system.models[k]
+            src = np.asarray(system.src[k], dtype=int)
+            fresh = np.array([gauss_seidel and rank[owner[j]] < rank[k] for j in src], dtype=int)
+            # input j uses rows n - p + fresh_j ... n + fresh_j: flat indices relative to row n
+            gather = (np.arange(-p, 1)[:, None] + fresh[None, :]) * m + src[None, :]
+            w = np.where(fresh[None, :] == 1, weights[1][:, None], weights[0][:, None])
+            contiguous = src.size > 0 and np.array_equal(src, np.arange(src[0],
+                                                                        src[0] + src.size))
+            block = None  # (first row offset, first column, end column, weights)
+            if contiguous and len(set(fresh.tolist())) == 1:
+                f = int(fresh[0])
+                block = (f - p, f + 1, int(src[0]), int(src[0]) + src.size, weights[f])
+            raw = None if watched else getattr(model, "_direct_io", lambda: None)()
+            buffer = np.zeros(src.size)
+            if raw is not None:
+                out = system.output_slices[k]
+                raw = (*raw, 8 * out.start, buffer.ctypes.data)
+            self.plan.append((k, model, raw, block, gather, w, master._identity[k],
+                              system.a[k], system.b[k], system.output_slices[k], buffer))
+
+    def sync(self) -> None:
+        """Add the counts so far to the master's (once, when the run ends)."""
+        self.master.calls += np.array(self.calls, dtype=np.int64)
+        self.master.time_in_models += np.array(self.time)
+        self.calls = [0] * len(self.calls)
+        self.time = [0.0] * len(self.time)
+
+    def step(self, t: float, h: float, n: int, flat: np.ndarray, base: int) -> None:
+        """Step every model from row ``n`` to row ``n + 1`` of the table (``n >= p``, rows
+        ``n - p`` to ``n`` one step ``h`` apart).
+
+        ``flat`` is the table as one flat array, ``base`` its address; a sub-model failure
+        raises :class:`SubModelError` as :meth:`Master.step` does.
+        """
+        m = self.m
+        row = n * m
+        if flat is not self._flat:
+            self._flat, self._rows = flat, flat.reshape(-1, m)
+        rows = self._rows
+        calls, spent, clock, dot = self.calls, self.time, time.perf_counter, np.dot
+        for k, model, raw, block, gather, w, identity, a, b, out, buffer in self.plan:
+            if raw is not None:
+                (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
+                 out_offset, buffer_address) = raw
+                if block is not None:
+                    r0, r1, c0, c1, wb = block
+                    dot(wb, rows[n + r0:n + r1, c0:c1], out=buffer)
+                    if not identity:
+                        buffer[:] = a * buffer + b
+                else:
+                    x = (w * flat[gather + row]).sum(axis=0)
+                    buffer[:] = x if identity else a * x + b
+                calls[k] += 1
+                start = clock()
+                status = set_real(component, in_vr, n_in, buffer_address)
+                if status > 1:
+                    self._fail(k, t, h, fail("fmi2SetReal", status))
+                status = do_step(component, t, h, 1)
+                if status > 1:
+                    self._fail(k, t, h, fail("fmi2DoStep", status))
+                spent[k] += clock() - start
+                status = get_real(component, out_vr, n_out, base + 8 * (row + m) + out_offset)
+                if status > 1:
+                    self._fail(k, t, h, fail("fmi2GetReal", status))
+            else:
+                master = self.master
+                if block is not None:
+                    r0, r1, c0, c1, wb = block
+                    x = dot(wb, rows[n + r0:n + r1, c0:c1])
+                else:
+                    x = (w * flat[gather + row]).sum(axis=0)
                 u = x if identity else a * x + b
                 calls[k] += 1
                 start = clock()

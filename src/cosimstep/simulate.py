@@ -236,6 +236,9 @@ class _FixedLoop:
     when steps are slow, so rows still reach the store's commit (every 0.5 s) while a run of
     slow sub-models goes on — what a crash keeps — without a clock read per step. With inputs
     held and no feedthrough, :class:`~cosimstep.masters._HeldKernel` does the master's step;
+    with inputs extrapolated (order 1 or 2), no feedthrough and no input derivatives,
+    :class:`~cosimstep.masters._ExtrapolatingKernel` does the steps after the first ``order``
+    of each segment that are as long as the ones before (values equal to rounding);
     otherwise :meth:`Master.step` is called with the history the controller loop would pass.
     """
 
@@ -276,7 +279,12 @@ class _FixedLoop:
         t = self.t0
         y0 = runner.initialize(t)
         self.times[0], self.table[0], self.n = t, y0, 0
-        kernel = self.kernel = runner.held_kernel()
+        kernel = self.kernel = runner.held_kernel() or runner.extrapolating_kernel()
+        # An extrapolating kernel needs `order` equal steps before the step in its segment: the
+        # general step does the first `order` steps of each segment (where it lowers the order
+        # and may use grey-box slopes). Within a segment every step is h_plain except the one
+        # landing on the event or end time, so "h == h_plain" after them means equal spacing.
+        lean_after = getattr(kernel, "order", 0)
         hmax_models = runner.max_step
         clock, carry = t, 0.0  # _Clock, inlined
         segment = 0  # first point extrapolation may use (the last time event's)
@@ -297,7 +305,8 @@ class _FixedLoop:
                 self._grow()
                 table = self.table
                 flat, base = table.reshape(-1), table.ctypes.data
-            if kernel is not None:
+            if kernel is not None and (not lean_after or (n - segment >= lean_after
+                                                          and h == h_plain)):
                 kernel.step(t, h, n, flat, base)
             else:
                 first = max(segment, n + 1 - HISTORY_ROWS)

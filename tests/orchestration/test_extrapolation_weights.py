@@ -31,3 +31,26 @@ def test_written_out_weights_equal_the_loop_bit_for_bit() -> None:
     cases += [[-0.0, 1.0, 2.0], [0.0, -1.0, -2.0], [-2.0, -1.0, 0.0], [1.0, -0.0]]
     for s in cases:
         assert _bits(_weights(s)) == _bits(_weights_loop(s)), s
+
+
+def test_midstep_weights_are_the_general_steps_mid_step_value() -> None:
+    """On uniform steps the lean loop's fixed weights give what Taylor coefficients from the
+    stored points, evaluated at mid-step, give (Jacobi: last p + 1 points; Gauss-Seidel: last p
+    points and the one at t + h)."""
+    import numpy as np
+
+    from cosimstep.extrapolation import evaluate, midstep_weights, taylor_coefficients
+
+    rng = np.random.default_rng(3)
+    h, t = 0.25, 2.0
+    for p in (0, 1, 2):
+        for through_end in (False, True):
+            first = 1 - p if through_end else -p
+            times = [t + h * i for i in range(first, first + p + 1)]
+            values = rng.normal(size=(p + 1, 3))
+            expected = evaluate(taylor_coefficients(times, values, t, p), 0.5 * h)
+            w = midstep_weights(p, through_end)
+            assert abs(sum(w) - 1.0) == 0.0
+            assert np.allclose(np.array(w) @ values, expected, rtol=0, atol=1e-14)
+    assert midstep_weights(2) == [0.375, -1.25, 1.875]
+    assert midstep_weights(2, True) == [-0.125, 0.75, 0.375]
