@@ -297,7 +297,7 @@ def test_sub_models_are_terminated_when_the_last_rows_cannot_be_stored(
 # steps the lean loop takes it as fixed weights of stored rows, the general loop from Taylor
 # coefficients: the same run up to rounding. Measured: the toggled pendulum to 2.5 s (time
 # events at 1 s and 2 s) differs by at most 2.0e-15 (values of order 1); the chains below by at
-# most 1.3e-16 of the column's largest value. The bound asserted, relative to each column's
+# most 3.2e-16 of the column's largest value. The bound asserted, relative to each column's
 # largest value (at least 1):
 AGREE = 1e-13
 
@@ -427,15 +427,18 @@ def mixed_chain() -> System:
     return s
 
 
-@pytest.mark.parametrize("master", ["jacobi", "gauss-seidel"])
+@pytest.mark.parametrize("master, sequence", [("jacobi", None), ("gauss-seidel", None),
+                                              ("gauss-seidel", ("d", "c", "idle", "b", "a"))])
 @pytest.mark.parametrize("order", [1, 2])
-def test_extrapolating_kernel_on_gathered_inputs(master: str, order: int, monkeypatch) -> None:
+def test_extrapolating_kernel_on_gathered_inputs(master: str, sequence: tuple | None, order: int,
+                                                 monkeypatch) -> None:
     count = KernelSteps(monkeypatch)
-    lean = simulate(mixed_chain(), 2.0, Fixed(0.05), MasterOptions(master, order))
+    options = MasterOptions(master, order, order=sequence)
+    lean = simulate(mixed_chain(), 2.0, Fixed(0.05), options)
     # the general step: the first `order` steps, and the last if its h = until - t is not
     # exactly 0.05
     assert order <= count.general <= order + 1 and count.general + count.lean == 40
-    general = simulate(mixed_chain(), 2.0, GeneralFixed(0.05), MasterOptions(master, order))
+    general = simulate(mixed_chain(), 2.0, GeneralFixed(0.05), options)
     assert lean.success and np.all(lean.values[-1, :4] != 0.0)
     assert not np.array_equal(lean.values, general.values)
     assert_agreeing_run(lean, general)
