@@ -125,3 +125,17 @@ def midstep_weights(order: int, through_end: bool = False) -> list[float]:
     w = _weights(s)
     return [sum(w[k][i] * 0.5**k / math.factorial(k) for k in range(order + 1))
             for i in range(order + 1)]
+
+
+def step_derivative_weights(order: int, through_end: bool = False) -> list[list[float]]:
+    """``weights[k - 1][i]``: the weight of the ``i``-th of the last ``order + 1`` values (oldest
+    first) in the input polynomial's ``k``-th derivative at ``t`` (``k = 1 … order``), for
+    points one unit step apart; for steps of ``h``, divide by ``h**k``.
+
+    The points are those of :func:`midstep_weights`. With them, the rows ``1 …`` of
+    :func:`taylor_coefficients` at ``t`` — what a sub-model taking input derivatives receives
+    (:meth:`cosimstep.masters.Master.step`) — are these weighted sums (the ``k``-th derivative,
+    ``k!`` included, as the FMI standard wants it). Each row sums to 0.
+    """
+    first = 1 - order if through_end else -order
+    return _weights([float(i) for i in range(first, first + order + 1)])[1:]

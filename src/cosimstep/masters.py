@@ -25,7 +25,12 @@ from typing import Any
 import numpy as np
 
 from cosimstep.errors import SubModelError
-from cosimstep.extrapolation import evaluate, midstep_weights, taylor_coefficients
+from cosimstep.extrapolation import (
+    evaluate,
+    midstep_weights,
+    step_derivative_weights,
+    taylor_coefficients,
+)
 from cosimstep.system import CompiledSystem
 
 MASTERS = ("jacobi", "gauss-seidel", "multirate")
@@ -403,10 +408,12 @@ class Master:
         """The lean form of :meth:`step` at extrapolation order 1 or 2 on uniform steps, or
         ``None``.
 
-        It applies when no sub-model has direct feedthrough or takes input derivatives: every
-        input is then the input polynomial's value at mid-step, which on uniform steps is a
-        fixed linear combination of the last stored rows (and, under Gauss–Seidel, of the new
-        one; see :func:`~cosimstep.extrapolation.midstep_weights`). The caller uses it only for
+        It applies when no sub-model has direct feedthrough: every input is then the input
+        polynomial's value at mid-step, or (for a sub-model taking input derivatives) its value
+        and derivatives at the step's start, which on uniform steps are fixed linear
+        combinations of the last stored rows (and, under Gauss–Seidel, of the new one; see
+        :func:`~cosimstep.extrapolation.midstep_weights` and
+        :func:`~cosimstep.extrapolation.step_derivative_weights`). The caller uses it only for
         steps as long as the ``order`` steps before them, within one segment (see
         :class:`_ExtrapolatingKernel`).
         """
@@ -414,8 +421,6 @@ class Master:
                                                                          "gauss-seidel"):
             return None
         if any(m.capabilities.has_direct_feedthrough for m in self.system.models):
-            return None
-        if any(self._deriv_order):
             return None
         return _ExtrapolatingKernel(self)
 
@@ -572,23 +577,34 @@ class _HeldKernel:
 
 class _ExtrapolatingKernel:
     """:meth:`Master.step` at extrapolation order ``p`` = 1 or 2 on uniform steps, without
-    feedthrough or input derivatives, for a row-major table.
+    feedthrough, for a row-major table.
 
-    Under those conditions :meth:`Master.step` gives every model the value at ``t + h/2`` of a
-    polynomial through the last ``p + 1`` stored rows (Jacobi, and Gauss–Seidel sources that
-    step later) or through the last ``p`` rows and the new one (Gauss–Seidel sources already
-    stepped). With equal steps that value is a fixed weighted sum of those rows
-    (:func:`~cosimstep.extrapolation.midstep_weights`), so the step needs no Taylor
+    Under those conditions :meth:`Master.step` gives a model without input derivatives the
+    value at ``t + h/2`` of a polynomial through the last ``p + 1`` stored rows (Jacobi, and
+    Gauss–Seidel sources that step later) or through the last ``p`` rows and the new one
+    (Gauss–Seidel sources already stepped). With equal steps that value is a fixed weighted sum
+    of those rows (:func:`~cosimstep.extrapolation.midstep_weights`), so the step needs no Taylor
     coefficients: the weights and the routing are fixed once here. A model reading one
     contiguous run of columns with one kind of source takes a dot product of the weights with
     that block of the table; otherwise its inputs are gathered by integer index arrays.
+
+    A model that takes input derivatives (order ``r > 0``) gets, as from :meth:`Master.step`,
+    the polynomial's value at ``t`` — row ``n`` itself, whichever the polynomial — and its
+    derivatives ``1 … q`` at ``t`` (``q = min(r, p)``; the ``k``-th derivative, not the Taylor
+    coefficient), times the connections' gains. With equal steps derivative ``k`` is again a
+    fixed weighted sum of the same rows, the weights of unit spacing
+    (:func:`~cosimstep.extrapolation.step_derivative_weights`) divided by ``h**k`` (redone
+    when ``h`` changes). An FMU offering its raw calls gets them through
+    ``fmi2SetRealInputDerivatives`` on its own derivative buffer: the kernel sends them before
+    every step, as the general step does through ``set_input_derivatives``.
 
     The caller uses it only where :meth:`Master.step` would see ``p + 1`` equally spaced points:
     from the ``p``-th step of a segment (the general step does the first ``p``, where the order
     drops and grey-box slopes may enter), and for steps as long as the ones before. The calls,
     their order, the counts, the stored rows and the errors are those of :meth:`Master.step`;
-    the values agree to rounding (the sums are taken in another order;
-    tests/orchestration/test_lean_fixed_step.py measures the difference).
+    the values agree to rounding (the sums are taken in another order, and the general step
+    takes the spacing from the stored times; tests/orchestration/test_lean_fixed_step.py and
+    tests/fmu/test_lean_fixed_step.py measure the difference).
     """
 
     def __init__(self, master: Master) -> None:
@@ -603,11 +619,16 @@ class _ExtrapolatingKernel:
         rank = {k: i for i, k in enumerate(master.sequence)}
         gauss_seidel = master.options.name == "gauss-seidel"
         weights = (np.array(midstep_weights(p, False)), np.array(midstep_weights(p, True)))
+        # derivatives 1..p at t for unit spacing, per kind of source: (p, p + 1)
+        unit = (np.array(step_derivative_weights(p, False)),
+                np.array(step_derivative_weights(p, True)))
         self.calls = [0] * len(system.models)  # added to the master's counts by :meth:`sync`
         self.time = [0.0] * len(system.models)
         watched = master._watch is not None or master._call is not None
         self._flat: np.ndarray | None = None  # the table as given, and as rows
         self._rows = np.empty((0, m))
+        self._h: float | None = None  # the step the derivative weights are scaled for
+        self._scaled: list[tuple[np.ndarray, np.ndarray]] = []  # (unit weights, scaled ones)
         self.plan = []
         for k in master.sequence:
             model = system.models[k]
@@ -615,20 +636,51 @@ class _ExtrapolatingKernel:
             fresh = np.array([gauss_seidel and rank[owner[j]] < rank[k] for j in src], dtype=int)
             # input j uses rows n - p + fresh_j ... n + fresh_j: flat indices relative to row n
             gather = (np.arange(-p, 1)[:, None] + fresh[None, :]) * m + src[None, :]
-            w = np.where(fresh[None, :] == 1, weights[1][:, None], weights[0][:, None])
             contiguous = src.size > 0 and np.array_equal(src, np.arange(src[0],
                                                                         src[0] + src.size))
-            block = None  # (first row offset, first column, end column, weights)
-            if contiguous and len(set(fresh.tolist())) == 1:
-                f = int(fresh[0])
-                block = (f - p, f + 1, int(src[0]), int(src[0]) + src.size, weights[f])
-            raw = None if watched else getattr(model, "_direct_io", lambda: None)()
+            one_kind = contiguous and len(set(fresh.tolist())) == 1
+            q = min(master._deriv_order[k], p)
+            block = None  # (first row offset, end row offset, first column, end column, weights)
+            deriv = None
+            if q == 0:
+                w = np.where(fresh[None, :] == 1, weights[1][:, None], weights[0][:, None])
+                if one_kind:
+                    f = int(fresh[0])
+                    block = (f - p, f + 1, int(src[0]), int(src[0]) + src.size, weights[f])
+            else:
+                w = None
+                if one_kind:
+                    f = int(fresh[0])
+                    wd_unit = unit[f][:q]
+                    block = (f - p, f + 1, int(src[0]), int(src[0]) + src.size, None)
+                else:  # per input: (q, p + 1, inputs)
+                    wd_unit = np.where(fresh[None, None, :] == 1, unit[1][:q, :, None],
+                                       unit[0][:q, :, None])
+                wd = wd_unit.copy()
+                self._scaled.append((wd_unit, wd))
+                deriv = (q, wd, src, np.zeros((q, src.size)))
+            raw = None
+            if not watched:
+                direct = getattr(model, "_direct_io", None)
+                if direct is not None:
+                    raw = direct(derivatives=True) if q else direct()
             buffer = np.zeros(src.size)
             if raw is not None:
                 out = system.output_slices[k]
                 raw = (*raw, 8 * out.start, buffer.ctypes.data)
-            self.plan.append((k, model, raw, block, gather, w, master._identity[k],
+                if q:
+                    # the inputs straight from row n when passed on unchanged in one block
+                    direct_in = master._identity[k] and contiguous
+                    raw = (*raw, 8 * int(src[0]) if direct_in else None)
+            self.plan.append((k, model, raw, block, gather, w, deriv, master._identity[k],
                               system.a[k], system.b[k], system.output_slices[k], buffer))
+
+    def _scale(self, h: float) -> None:
+        """Derivative weights for steps of ``h``: derivative ``k`` scales like ``h**-k``."""
+        for wd_unit, wd in self._scaled:
+            for i in range(wd.shape[0]):
+                wd[i] = wd_unit[i] / h ** (i + 1)
+        self._h = h
 
     def sync(self) -> None:
         """Add the counts so far to the master's (once, when the run ends)."""
@@ -648,25 +700,56 @@ class _ExtrapolatingKernel:
         row = n * m
         if flat is not self._flat:
             self._flat, self._rows = flat, flat.reshape(-1, m)
+        if h != self._h:
+            self._scale(h)
         rows = self._rows
         calls, spent, clock, dot = self.calls, self.time, time.perf_counter, np.dot
-        for k, model, raw, block, gather, w, identity, a, b, out, buffer in self.plan:
-            if raw is not None:
-                (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
-                 out_offset, buffer_address) = raw
+        for k, model, raw, block, gather, w, deriv, identity, a, b, out, buffer in self.plan:
+            if deriv is not None:
+                q, wd, src, d = deriv
+                # derivatives 1..q at t: fixed weights (scaled for h) of the rows, times gains
                 if block is not None:
-                    r0, r1, c0, c1, wb = block
-                    dot(wb, rows[n + r0:n + r1, c0:c1], out=buffer)
-                    if not identity:
-                        buffer[:] = a * buffer + b
+                    r0, r1, c0, c1, _ = block
+                    dot(wd, rows[n + r0:n + r1, c0:c1], out=d)
                 else:
-                    x = (w * flat[gather + row]).sum(axis=0)
-                    buffer[:] = x if identity else a * x + b
+                    np.sum(wd * flat[gather + row], axis=1, out=d)
+                if not identity:
+                    d *= a
+            if raw is not None:
+                if deriv is None:
+                    (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
+                     out_offset, buffer_address) = raw
+                    if block is not None:
+                        r0, r1, c0, c1, wb = block
+                        dot(wb, rows[n + r0:n + r1, c0:c1], out=buffer)
+                        if not identity:
+                            buffer[:] = a * buffer + b
+                    else:
+                        x = (w * flat[gather + row]).sum(axis=0)
+                        buffer[:] = x if identity else a * x + b
+                else:
+                    (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
+                     set_derivatives, deriv_vr, n_deriv, deriv_order, d_model, d_address,
+                     out_offset, buffer_address, in_offset) = raw
+                    if in_offset is None:
+                        x = flat[src + row]
+                        buffer[:] = x if identity else a * x + b
+                    else:
+                        buffer_address = base + 8 * row + in_offset  # row n, unchanged
+                    d_model[:q] = d
+                    d_model[q:] = 0.0
                 calls[k] += 1
                 start = clock()
                 status = set_real(component, in_vr, n_in, buffer_address)
                 if status > 1:
                     self._fail(k, t, h, fail("fmi2SetReal", status))
+                if deriv is not None:
+                    status = set_derivatives(component, deriv_vr, n_deriv, deriv_order,
+                                             d_address)
+                    if status > 1:
+                        self._fail(k, t, h, fail("fmi2SetRealInputDerivatives", status))
+                    # as after set_input_derivatives (conservatively: "may be nonzero")
+                    model._derivatives_set, model._derivatives_stale = True, False
                 status = do_step(component, t, h, 1)
                 if status > 1:
                     self._fail(k, t, h, fail("fmi2DoStep", status))
@@ -676,7 +759,9 @@ class _ExtrapolatingKernel:
                     self._fail(k, t, h, fail("fmi2GetReal", status))
             else:
                 master = self.master
-                if block is not None:
+                if deriv is not None:
+                    x = flat[deriv[2] + row]  # the value at t: row n
+                elif block is not None:
                     r0, r1, c0, c1, wb = block
                     x = dot(wb, rows[n + r0:n + r1, c0:c1])
                 else:
@@ -685,6 +770,8 @@ class _ExtrapolatingKernel:
                 calls[k] += 1
                 start = clock()
                 master._guard(k, t, model.set_inputs, u, h=h)
+                if deriv is not None:
+                    master._guard(k, t, model.set_input_derivatives, deriv[3].copy(), h=h)
                 master._guard(k, t, model.do_step, t, h, h=h)
                 spent[k] += clock() - start
                 flat[row + m + out.start:row + m + out.stop] = master._outputs(k, t, h)

@@ -236,7 +236,7 @@ class _FixedLoop:
     when steps are slow, so rows still reach the store's commit (every 0.5 s) while a run of
     slow sub-models goes on — what a crash keeps — without a clock read per step. With inputs
     held and no feedthrough, :class:`~cosimstep.masters._HeldKernel` does the master's step;
-    with inputs extrapolated (order 1 or 2), no feedthrough and no input derivatives,
+    with inputs extrapolated (order 1 or 2) and no feedthrough (input derivatives or not),
     :class:`~cosimstep.masters._ExtrapolatingKernel` does the steps after the first ``order``
     of each segment that are as long as the ones before (values equal to rounding);
     otherwise :meth:`Master.step` is called with the history the controller loop would pass.

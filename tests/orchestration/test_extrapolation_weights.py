@@ -54,3 +54,27 @@ def test_midstep_weights_are_the_general_steps_mid_step_value() -> None:
             assert np.allclose(np.array(w) @ values, expected, rtol=0, atol=1e-14)
     assert midstep_weights(2) == [0.375, -1.25, 1.875]
     assert midstep_weights(2, True) == [-0.125, 0.75, 0.375]
+
+
+def test_step_derivative_weights_are_the_general_steps_derivatives() -> None:
+    """On uniform steps of h the lean loop's fixed weights, divided by h**k, give derivative k at
+    t of the polynomial through the stored points — rows 1 ... p of the general step's Taylor
+    coefficients, which a sub-model taking input derivatives receives."""
+    import numpy as np
+
+    from cosimstep.extrapolation import step_derivative_weights, taylor_coefficients
+
+    rng = np.random.default_rng(4)
+    h, t = 0.25, 2.0
+    for p in (1, 2):
+        for through_end in (False, True):
+            first = 1 - p if through_end else -p
+            times = [t + h * i for i in range(first, first + p + 1)]
+            values = rng.normal(size=(p + 1, 3))
+            expected = taylor_coefficients(times, values, t, p)[1:]
+            w = np.array(step_derivative_weights(p, through_end))
+            assert w.shape == (p, p + 1) and np.all(w.sum(axis=1) == 0.0)
+            got = (w / h ** np.arange(1, p + 1)[:, None]) @ values
+            assert np.allclose(got, expected, rtol=0, atol=1e-13)
+    assert step_derivative_weights(2) == [[0.5, -2.0, 1.5], [1.0, -2.0, 1.0]]
+    assert step_derivative_weights(1, True) == [[-1.0, 1.0]]

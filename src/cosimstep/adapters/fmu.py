@@ -62,7 +62,8 @@ class DirectIO(tuple):
     ``do_step`` takes ``(component, t, h, 1)``; each returns the FMI status, and a status above
     1 (warning) is a failure, for which ``fail(function_name, status)`` builds the exception the
     sub-model's own methods would raise. Addresses are plain integers; the caller keeps the
-    memory alive.
+    memory alive. Asked for with input derivatives (:meth:`FmuSubModel._direct_io`), six more
+    entries follow: the call sending them and its arguments.
     """
 
     __slots__ = ()
@@ -170,23 +171,40 @@ class FmuSubModel(FmuBase):
             ("y", self._y), ("dy", self._dy), ("d", self._d), ("deriv_vr", self._deriv_vr_c),
             ("deriv_order", self._deriv_order_c), ("ones", self._ones_c))}
 
-    def _direct_io(self) -> DirectIO | None:
+    def _direct_io(self, derivatives: bool = False) -> DirectIO | None:
         """The raw calls of a step for a master that passes addresses (see :class:`DirectIO`).
 
-        ``None`` when a subclass overrides a step method (the master must call it), when the
-        instance is not initialized, or when it holds input derivatives (a plain ``set_inputs``
-        would have to clear them first).
+        ``None`` when a subclass overrides a step method (the master must call it) or when the
+        instance is not initialized. Without ``derivatives`` also when it holds input
+        derivatives (a plain ``set_inputs`` would have to clear them first). With
+        ``derivatives`` the master sends input derivatives before every step itself: ``None``
+        when the FMU takes none or a subclass overrides ``set_input_derivatives``, and the
+        entries of :class:`DirectIO` are followed by ``(set_derivatives, deriv_vr, n_deriv,
+        deriv_order, d, d_address)``: ``fmi2SetRealInputDerivatives`` taking ``(component,
+        deriv_vr, n_deriv, deriv_order, d_address)``, which sends the array ``d`` of shape
+        ``(order, n_in)`` (row ``k - 1``: the ``k``-th derivative of every input). The master
+        fills ``d`` (its rows beyond the orders it sends must be zero, as
+        :meth:`set_input_derivatives` makes them) and, after sending, records it as
+        :meth:`set_input_derivatives` does (``_derivatives_set``, ``_derivatives_stale``).
         """
         cls = type(self)
-        if (self._component is None or self._derivatives_set
+        if (self._component is None or (self._derivatives_set and not derivatives)
                 or cls.set_inputs is not FmuSubModel.set_inputs
                 or cls.do_step is not FmuSubModel.do_step
                 or cls.get_outputs is not FmuSubModel.get_outputs):
             return None
         c, addr = self._c, self._addr
-        return DirectIO((self._component, c["fmi2SetReal"], addr["in_vr"], len(self._in_vr),
-                         c["fmi2DoStep"], c["fmi2GetReal"], addr["out_vr"], len(self._out_vr),
-                         self._failed))
+        io = (self._component, c["fmi2SetReal"], addr["in_vr"], len(self._in_vr),
+              c["fmi2DoStep"], c["fmi2GetReal"], addr["out_vr"], len(self._out_vr),
+              self._failed)
+        if derivatives:
+            if (not self.capabilities.max_input_derivative_order
+                    or cls.set_input_derivatives is not FmuSubModel.set_input_derivatives
+                    or cls._send_derivatives is not FmuSubModel._send_derivatives):
+                return None
+            io += (c["fmi2SetRealInputDerivatives"], addr["deriv_vr"], self._deriv_vr_c.size,
+                   addr["deriv_order"], self._d, addr["d"])
+        return DirectIO(io)
 
     def set_inputs(self, values: np.ndarray) -> None:
         if self._component is None:
