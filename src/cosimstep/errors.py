@@ -44,6 +44,11 @@ class SubModelError(RuntimeError):
         where = f"t = {t:.9g}" + (f" (step to {t + h:.9g})" if h is not None else "")
         super().__init__(f"sub-model '{model}' failed at {where}: {reason}")
 
+    @property
+    def hung(self) -> bool:
+        """The call timed out: its thread may still be running the model, so no retry."""
+        return isinstance(self.__cause__, TimeoutError) or "TimeoutError" in self.reason
+
 
 class StepSizeError(RuntimeError):
     """A step controller cannot continue (for example the step fell below its minimum)."""

@@ -52,6 +52,7 @@ cubic-against-quartic difference at the newest interval overstates what a consum
 (consumers mostly read through centred stencils, and local errors of oscillating systems partly
 cancel). At tol 1e-4, 0.3 put the mixed pendulums, problem 6 and problem 9 at 0.03–4.4 × tol;
 0.1 left the λ = 10 / 30 pendulums at 25× / 39×, 1.0 cost 30 % more calls for 2–3× less error."""
+FAILED_TRIAL_SHRINK = 0.25  # step factor after a trial step the sub-model failed on
 ALIAS = 0.3  # relative slope mismatch beyond which a grey-box step counts as unresolved
 
 
@@ -74,6 +75,7 @@ class Track:
     rejected: int = 0
     corrections: int = 0
     verified: int = 0
+    failed_trials: int = 0  # rejections because the sub-model failed on the trial step
     steps: list[float] = field(default_factory=list)
     time_in_model: float = 0.0
 
@@ -324,8 +326,12 @@ class Multirate:
                 h = landing - t
             token = self._guard(k, t, model.save_state)
             inputs, extrapolated = self.inputs_over(k, t, h)
-            y = self.run_step(k, t, h, inputs)
-            slope = self._slope(k, t + h)
+            try:
+                y = self.run_step(k, t, h, inputs)
+                slope = self._slope(k, t + h)
+            except SubModelError as exc:
+                tr.h = self._failed_trial(tr, exc, token, t, h)
+                continue
             gain = self.consumer_gain(k)
             e = self.interpolation_error(tr, t + h, y)
             if len(tr.times) - tr.segment < 2:  # start-up: a one-off error, not a rate
@@ -361,6 +367,26 @@ class Multirate:
             tr.slopes.append(slope)
         tr.h = h_next
         return lands
+
+    def _failed_trial(self, tr: Track, exc: SubModelError, token: Any, t: float,
+                      h: float) -> float:
+        """A trial step the sub-model failed on (raised, non-finite outputs) is a rejection:
+        restore it and return the shorter step to retry with. The inputs of a trial step are
+        partly extrapolated and may lie where the true inputs never go (a singularity of the
+        right-hand side); only a failure down to ``hmin`` or a hung call ends the run."""
+        if exc.hung:
+            raise exc
+        h_next = FAILED_TRIAL_SHRINK * h
+        if h_next < tr.policy.hmin:
+            raise SubModelError(exc.model, exc.t, f"{exc.reason} (still after retrying with "
+                                f"steps down to {h:.3g} s; hmin = {tr.policy.hmin:.3g} s)",
+                                exc.h) from exc
+        tr.rejected += 1
+        tr.failed_trials += 1
+        if self.on_attempt is not None:
+            self.on_attempt(tr.name, t, h, False)
+        self._guard(tr.index, t, self.system.models[tr.index].restore_state, token)
+        return h_next
 
     # -- the race ------------------------------------------------------------------------------
     def initialize(self, t0: float, until: float, events: list[float]) -> None:

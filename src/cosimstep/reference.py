@@ -36,7 +36,7 @@ class Reference:
         model.initialize(t0)
         x = model.state
         u = np.zeros(0)
-        cuts = [t0, *model.parameters.breakpoints(t0, t_end), t_end]
+        cuts = [t0, *model.breakpoints(t0, t_end), t_end]
         self._segments = []
         for a, b in itertools.pairwise(cuts):
             p = model.parameters.at(a)
@@ -64,23 +64,30 @@ class Reference:
 
 @dataclass(frozen=True)
 class ErrorReport:
-    """Max absolute error and RMSE over the mapped variables, plus each variable's maxima."""
+    """Max absolute error and RMSE over the mapped variables, plus each variable's maxima.
+
+    ``max_scaled`` is the largest ``|error| / (1 + |reference|)``: the norm the adaptive
+    controllers' ``tol`` bounds (with the default ``atol = rtol = tol``), so ``max_scaled / tol``
+    says how well a run kept its promise.
+    """
 
     max_abs: float
     rmse: float
     per_variable: dict[str, float]
     points: int
+    max_scaled: float = float("nan")
 
     def to_dict(self) -> dict:
-        return {"max_abs": self.max_abs, "rmse": self.rmse, "per_variable": self.per_variable,
-                "points": self.points}
+        return {"max_abs": self.max_abs, "rmse": self.rmse, "max_scaled": self.max_scaled,
+                "per_variable": self.per_variable, "points": self.points}
 
 
 def error_report(times: np.ndarray, values: np.ndarray, reference: np.ndarray,
                  names: list[str]) -> ErrorReport:
     diff = np.abs(values - reference)
+    scaled = diff / (1.0 + np.abs(reference))
     return ErrorReport(
         max_abs=float(diff.max()) if diff.size else 0.0,
         rmse=float(np.sqrt(np.mean(diff**2))) if diff.size else 0.0,
         per_variable={n: float(diff[:, j].max()) for j, n in enumerate(names)},
-        points=len(times))
+        points=len(times), max_scaled=float(scaled.max()) if diff.size else 0.0)

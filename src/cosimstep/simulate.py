@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from cosimstep.controllers import Controller, Fixed
+from cosimstep.controllers.base import Attempt
 from cosimstep.errors import StepSizeError, SubModelError
 from cosimstep.masters import Master, MasterOptions, _Watchdog
 from cosimstep.reference import ErrorReport, Reference, error_report
@@ -27,6 +28,7 @@ from cosimstep.store import Store
 from cosimstep.system import System
 
 HISTORY_ROWS = 4  # stored points handed to controllers/masters for extrapolation
+FAILED_TRIAL_SHRINK = 0.25  # step factor after a trial step a sub-model failed on
 
 
 @dataclass
@@ -127,6 +129,7 @@ class _Context:
         self.consumed = master.consumed
         self.held = master.held
         self._segment = 0  # index of the first point after the last time event
+        self.first_token: Any = None  # the first state saved during the current attempt
 
     def push(self, t: float, y: np.ndarray) -> None:
         self.all_times.append(t)
@@ -159,7 +162,10 @@ class _Context:
         return self.master.derivatives()
 
     def save(self) -> Any:
-        return self.master.save()
+        token = self.master.save()
+        if self.first_token is None:
+            self.first_token = token
+        return token
 
     def restore(self, token: Any) -> None:
         self.master.restore(token)
@@ -177,6 +183,7 @@ class _ControllerLoop:
         self.t = t0
         self.steps: list[float] = []
         self.rejected = 0
+        self.failed_trials = 0  # rejected because a sub-model failed on the trial step
 
     def run(self) -> None:
         runner, controller, ctx, sink, bar = (self.runner, self.controller, self.ctx,
@@ -195,7 +202,11 @@ class _ControllerLoop:
             h = min(h, hmax_models)
             if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
                 h = landing - t  # land exactly on the event / end time
-            attempt = controller.attempt(ctx, t, h)
+            ctx.first_token = None
+            try:
+                attempt = controller.attempt(ctx, t, h)
+            except SubModelError as exc:
+                attempt = self._failed_trial(exc, t, h)
             if sink is not None:
                 sink.add_attempt(None, t, h, attempt.accepted, attempt.error)
             if attempt.accepted:
@@ -215,6 +226,30 @@ class _ControllerLoop:
             else:
                 self.rejected += 1
             h = attempt.h_next
+
+    def _failed_trial(self, exc: SubModelError, t: float, h: float) -> Attempt:
+        """A trial step a sub-model could not take (it raised, or returned NaN or inf) is a
+        rejected step: the sub-models go back to ``t`` and the step is retried at a quarter of
+        its length (the factor SUNDIALS' integrators apply after a failed nonlinear solve).
+
+        An adaptive controller proposes steps the sub-models have never seen; extrapolated
+        inputs over a long step can leave a sub-model's domain (a singularity, a solver that
+        gives up) although the true inputs never do. Only a failure that persists down to the
+        controller's ``hmin``, a call that hung (its thread may still hold the model), or a
+        controller that cannot roll back ends the run.
+        """
+        policy = getattr(self.controller, "policy", None)
+        token = self.ctx.first_token
+        if exc.hung or token is None or policy is None:
+            raise exc
+        h_next = FAILED_TRIAL_SHRINK * h
+        if h_next < policy.hmin:
+            raise SubModelError(exc.model, exc.t, f"{exc.reason} (still after retrying with "
+                                f"steps down to {h:.3g} s; hmin = {policy.hmin:.3g} s)",
+                                exc.h) from exc
+        self.ctx.restore(token)
+        self.failed_trials += 1
+        return Attempt(np.empty(0), False, h_next, math.inf)
 
     def finish(self) -> None:
         """Nothing to hand on: every point went to the store as it was accepted."""
@@ -592,7 +627,7 @@ def _simulate_multirate(compiled: Any, until: float, controller: Controller,
     if reference is not None and started and t_end > t0:
         reference.solve(t0, float(max(tr.t for tr in tracks)))
         names = [n for n in compiled.output_names if n in reference.mapping]
-        diffs, per = [], {}
+        diffs, scaled, per = [], [], {}
         for tr in tracks:
             sl = compiled.output_slices[tr.index]
             own = [n for n in compiled.output_names[sl] if n in reference.mapping]
@@ -600,14 +635,17 @@ def _simulate_multirate(compiled: Any, until: float, controller: Controller,
                 continue
             cols = [compiled.output_names[sl].index(n) for n in own]
             t_own = np.asarray(tr.times)
-            d = np.abs(np.array(tr.rows)[:, cols] - reference.values(t_own, own))
+            ref_own = reference.values(t_own, own)
+            d = np.abs(np.array(tr.rows)[:, cols] - ref_own)
             diffs.append(d.ravel())
+            scaled.append((d / (1.0 + np.abs(ref_own))).ravel())
             per.update({n: float(d[:, c].max()) for c, n in enumerate(own)})
         all_d = np.concatenate(diffs) if diffs else np.zeros(0)
         err = ErrorReport(float(all_d.max()) if all_d.size else 0.0,
                           float(np.sqrt(np.mean(all_d**2))) if all_d.size else 0.0,
-                          {n: per[n] for n in names if n in per}, int(sum(len(tr.times)
-                                                                         for tr in tracks)))
+                          {n: per[n] for n in names if n in per},
+                          int(sum(len(tr.times) for tr in tracks)),
+                          float(np.concatenate(scaled).max()) if all_d.size else 0.0)
         ref_values = reference.values(grid, names)
     if sink is not None:
         for i, (t, y) in enumerate(zip(grid, values)):

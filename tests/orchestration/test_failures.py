@@ -47,3 +47,56 @@ def test_hanging_submodel_times_out():
     assert time.perf_counter() - start < 5.0
     assert r.status == "failed" and "no answer within 0.5 s" in r.message
     assert r.steps_accepted == 5
+
+
+def _fragile(examples, h_fail: float, mode: str, after: float = 0.0):
+    """The mixed pendulum whose lower bar fails on any step longer than ``h_fail`` that starts
+    after ``after`` (raises, or returns NaN), as an internal solver may on an over-long step."""
+    from cosimstep import load_system
+
+    spec = load_system(examples / "double_pendulum_mixed.toml")
+    bar = spec.system.models["bar2"]
+    plain_step, plain_out = bar.do_step, bar.get_outputs
+    failed = {"now": False, "count": 0}
+
+    def do_step(t, h):
+        failed["now"] = h > h_fail and t >= after
+        if failed["now"]:
+            failed["count"] += 1
+            if mode == "raise":
+                raise RuntimeError(f"internal solver gave up on a step of {h:.3g} s")
+        plain_step(t, h)
+
+    def get_outputs():
+        return np.full(2, np.nan) if failed["now"] else plain_out()
+
+    bar.do_step, bar.get_outputs = do_step, get_outputs
+    return spec, failed
+
+
+@pytest.mark.parametrize("master", ["gauss-seidel", "multirate"])
+@pytest.mark.parametrize("mode", ["raise", "nan"])
+def test_a_failing_trial_step_is_a_rejection(examples, master, mode):
+    from cosimstep import make_controller
+
+    tol = 1e-4
+    spec, failed = _fragile(examples, 0.004, mode)
+    r = simulate(spec.system, 3.0, make_controller("pc", None, tol), MasterOptions(master, 2),
+                 reference=spec.reference)
+    assert r.status == "ok", r.message
+    assert failed["count"] > 10  # measured 274 (pc), 334 (multirate): it tries to grow
+    assert r.steps_rejected >= failed["count"]
+    assert r.models["bar2"].step_sizes.max() <= 0.004 * (1 + 1e-9)
+    assert r.error.max_scaled <= 10 * tol  # measured 2e-4 (pc, steps capped) and 0.14 tol
+
+
+def test_a_failure_that_persists_down_to_hmin_ends_the_run(examples):
+    from cosimstep import make_controller
+
+    spec, _ = _fragile(examples, 0.0, "raise", after=1.0)
+    r = simulate(spec.system, 3.0, make_controller("pc", None, 1e-4, hmin=1e-6),
+                 MasterOptions("gauss-seidel", 2))
+    assert r.status == "failed"
+    assert "internal solver gave up" in r.message and "hmin = 1e-06" in r.message
+    assert 1.0 <= r.t_end < 1.01  # the last accepted step started just before t = 1
+    assert r.times[-1] == r.t_end and r.error is None

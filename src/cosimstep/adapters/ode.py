@@ -144,6 +144,10 @@ class OdeSubModel(SubModel):
         A :class:`ParameterSchedule` (or a plain mapping for constant parameters).
     solver:
         The internal solver, :class:`RK4` or :class:`SolveIvp`.
+    time_events:
+        Times where ``rhs`` itself is discontinuous in ``t`` (a step in a forcing term, say).
+        They are announced to the master like parameter changes, and a step straddling one is
+        integrated piecewise. Parameter change times are announced without being listed here.
     """
 
     def __init__(
@@ -154,8 +158,10 @@ class OdeSubModel(SubModel):
         outputs: Sequence[str] | None = None,
         parameters: ParameterSchedule | Mapping[str, float] | None = None,
         solver: InternalSolver | None = None,
+        time_events: Sequence[float] = (),
     ) -> None:
         self._rhs = rhs
+        self._events = tuple(sorted(float(e) for e in time_events))
         self._states = tuple(states)
         self.inputs = tuple(inputs)
         names = [s.name for s in self._states]
@@ -205,7 +211,7 @@ class OdeSubModel(SubModel):
 
         x = self._x
         rhs = self._rhs
-        cuts = [t, *self.parameters.breakpoints(t, t + h), t + h]
+        cuts = [t, *self.breakpoints(t, t + h), t + h]
         for a, b in itertools.pairwise(cuts):
             p = self.parameters.at(a)
             x = self.solver.advance(lambda s, y, p=p: rhs(s, y, inputs_at(s), p), a, b, x)
@@ -232,7 +238,11 @@ class OdeSubModel(SubModel):
         self._t, self._x, self._u, self._du = t, x.copy(), u.copy(), du.copy()
 
     def time_events(self) -> Sequence[float]:
-        return tuple(self.parameters.times)
+        return tuple(sorted({*self.parameters.times, *self._events}))
+
+    def breakpoints(self, t0: float, t1: float) -> list[float]:
+        """Discontinuities strictly inside ``(t0, t1)``: parameter changes and time events."""
+        return [t for t in self.time_events() if t0 < t < t1]
 
     @property
     def state_ports(self) -> tuple[Port, ...]:
