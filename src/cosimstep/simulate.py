@@ -40,6 +40,11 @@ class ModelStats:
     rejected: int
     corrections: int  # multi-rate: steps re-run after a failed verification of extrapolated input
     step_sizes: np.ndarray = field(repr=False)
+    times: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    """The sub-model's own communication points (multi-rate: its own steps; synchronous: the
+    common grid)."""
+    values: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
+    """Its outputs there, as it computed them (one column per output, in declaration order)."""
 
     def to_dict(self) -> dict[str, Any]:
         s = self.step_sizes
@@ -529,8 +534,9 @@ def simulate(
         err = error_report(times, values[:, cols], ref_values, names)
         if sink is not None:
             sink.add_reference(ref_values, cols)
-    models = {n: ModelStats(int(c), len(steps), rejected, 0, steps.copy())
-              for n, c in zip(compiled.names, runner.calls)}
+    models = {n: ModelStats(int(c), len(steps), rejected, 0, steps.copy(), times,
+                            values[:, compiled.output_slices[k]])
+              for k, (n, c) in enumerate(zip(compiled.names, runner.calls))}
     result = SimulationResult(
         status=status, message=message, t_end=float(t), names=compiled.output_names,
         units=compiled.output_units, times=times, values=values,
@@ -653,8 +659,14 @@ def _simulate_multirate(compiled: Any, until: float, controller: Controller,
         if ref_values is not None:
             names = [n for n in compiled.output_names if n in reference.mapping]
             sink.add_reference(ref_values, [compiled.output_names.index(n) for n in names])
+        for tr in tracks:
+            sl = compiled.output_slices[tr.index]
+            sink.add_own_points(list(range(sl.start, sl.stop)), np.asarray(tr.times),
+                                np.array(tr.rows).reshape(len(tr.times), -1))
     models = {tr.name: ModelStats(tr.calls, tr.accepted, tr.rejected, tr.corrections,
-                                  np.array(tr.steps)) for tr in tracks}
+                                  np.array(tr.steps), np.asarray(tr.times),
+                                  np.array(tr.rows).reshape(len(tr.times), -1))
+              for tr in tracks}
     all_steps = np.concatenate([np.array(tr.steps) for tr in tracks]) if tracks else np.zeros(0)
     result = SimulationResult(
         status=status, message=message, t_end=float(t_end), names=compiled.output_names,

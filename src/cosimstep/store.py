@@ -9,6 +9,8 @@ Tables (one file can hold many runs)::
     reference(run_id, step, variable_id, value)        -- the monolithic reference there, if any
     attempt(run_id, seq, model, t, h, accepted, error) -- every step attempt, rejected ones too
     calls(run_id, model, calls, time_in_model_s)
+    own_point(run_id, variable_id, seq, t, value)      -- multi-rate: each output at its own
+                                                          sub-model's communication points
 
 Rows are buffered and committed at least every ``flush_seconds`` of wall time, so a run that is
 interrupted or crashes keeps what it computed up to the last commit.
@@ -20,7 +22,7 @@ import json
 import sqlite3
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -44,6 +46,9 @@ CREATE TABLE IF NOT EXISTS reference(
 CREATE TABLE IF NOT EXISTS attempt(
     run_id INTEGER, seq INTEGER, model TEXT, t REAL, h REAL, accepted INTEGER, error REAL,
     PRIMARY KEY(run_id, seq)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS own_point(
+    run_id INTEGER, variable_id INTEGER, seq INTEGER, t REAL, value REAL,
+    PRIMARY KEY(run_id, variable_id, seq)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS calls(
     run_id INTEGER, model TEXT, calls INTEGER, time_in_model_s REAL,
     PRIMARY KEY(run_id, model));
@@ -126,6 +131,15 @@ class Store:
                 for j, vid in enumerate(variable_ids) for step in range(values.shape[0])]
         self._db.executemany("INSERT INTO reference VALUES (?, ?, ?, ?)", rows)
 
+    def add_own_points(self, variable_ids: Sequence[int], times: np.ndarray,
+                       values: np.ndarray) -> None:
+        """One sub-model's own points: ``values`` has a column per id in ``variable_ids``."""
+        rid = self.run_id
+        self._db.executemany("INSERT INTO own_point VALUES (?, ?, ?, ?, ?)",
+                             [(rid, vid, i, float(t), float(values[i, j]))
+                              for j, vid in enumerate(variable_ids)
+                              for i, t in enumerate(times)])
+
     def finish(self, status: str, message: str, t_end: float, wall_s: float,
                summary: dict[str, Any], calls: dict[str, int],
                time_in_models: dict[str, float]) -> None:
@@ -158,6 +172,9 @@ class StoredRun:
     reference: np.ndarray | None
     attempts: np.ndarray  # columns t, h, accepted
     attempt_models: list[str | None]
+    own_points: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    """Multi-rate runs: ``{output: (times, values)}`` at its sub-model's own points (the
+    common grid in ``times``/``values`` interpolates the other sub-models' outputs there)."""
 
     def to_pandas(self):
         """Exchanged values as a DataFrame indexed by time (needs pandas)."""
@@ -205,6 +222,10 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
                 reference[step, vid] = value
         att = db.execute("SELECT model, t, h, accepted FROM attempt WHERE run_id=? ORDER BY seq",
                          (run_id,)).fetchall()
+        own: dict[str, list[tuple[float, float]]] = {}
+        for vid, t, value in db.execute("SELECT variable_id, t, value FROM own_point WHERE "
+                                        "run_id=? ORDER BY variable_id, seq", (run_id,)):
+            own.setdefault(var[vid][0], []).append((t, value))
     finally:
         db.close()
     return StoredRun(
@@ -213,4 +234,6 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
         names=[v[0] for v in var], units=[v[1] for v in var], times=times, values=values,
         reference=reference,
         attempts=np.array([(a[1], a[2], a[3]) for a in att], dtype=float).reshape(-1, 3),
-        attempt_models=[a[0] for a in att])
+        attempt_models=[a[0] for a in att],
+        own_points={n: (np.array([p[0] for p in pts]), np.array([p[1] for p in pts]))
+                    for n, pts in own.items()})

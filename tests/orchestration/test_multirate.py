@@ -161,3 +161,25 @@ def test_store_and_plot_keep_each_submodels_steps(mixed, tmp_path) -> None:
         assert accepted.sum() == stats.accepted and (~accepted).sum() == stats.rejected
     assert np.allclose(stored.values, result.values)
     assert plot_run(stored, tmp_path / "mr.png").stat().st_size > 10_000
+
+
+def test_each_submodels_own_points_in_the_result_and_the_store(mixed, tmp_path) -> None:
+    from cosimstep import read_run
+
+    db = tmp_path / "own.db"
+    result = simulate(mixed.system, 2.0, make_controller("pc", None, 1e-4), MULTIRATE,
+                      reference=mixed.reference, store=db)
+    slow, fast = result.models["bar1"], result.models["bar2"]
+    assert len(slow.times) == slow.accepted + 1 and len(fast.times) == fast.accepted + 1
+    assert np.allclose(np.diff(fast.times), fast.step_sizes, rtol=0, atol=1e-12)
+    assert len(result.times) > len(fast.times)  # the common grid holds both bars' points
+    # the measured error is taken at the own points: recomputing it there gives the same number
+    mixed.reference.solve(0.0, 2.0)
+    worst = 0.0
+    for name, stats in result.models.items():
+        ref = mixed.reference.values(stats.times, [f"{name}.theta", f"{name}.omega"])
+        worst = max(worst, float(np.max(np.abs(stats.values - ref) / (1 + np.abs(ref)))))
+    assert worst == result.error.max_scaled
+    stored = read_run(db)
+    t, v = stored.own_points["bar2.omega"]
+    assert np.array_equal(t, fast.times) and np.array_equal(v, fast.values[:, 1])
