@@ -75,6 +75,10 @@ class SimulationResult:
     error: ErrorReport | None = None
     reference: np.ndarray | None = field(default=None, repr=False)
     models: dict[str, ModelStats] = field(default_factory=dict)
+    error_estimate: float | None = None
+    """The global error the run estimates it delivered, without a reference, in the norm
+    ``tol`` bounds (``max |e| / (1 + |y|)`` for the default ``atol = rtol = tol``); ``None``
+    for controllers without error control. Compare with ``error.max_scaled``."""
 
     @property
     def success(self) -> bool:
@@ -108,6 +112,7 @@ class SimulationResult:
             "master_overhead_s": max(self.wall_s - sum(self.time_in_models.values()), 0.0),
             "store": self.store,
         }
+        out["error_estimate"] = self.error_estimate
         if self.error is not None:
             out["error"] = self.error.to_dict()
         out["models"] = {n: m.to_dict() for n, m in self.models.items()}
@@ -545,7 +550,7 @@ def simulate(
         wall_s=wall, time_in_models={n: float(s) for n, s in
                                      zip(compiled.names, runner.time_in_models)},
         store=str(store) if store is not None else None, error=err, reference=ref_values,
-        models=models)
+        models=models, error_estimate=getattr(controller, "error_estimate", None))
     return _finish(result, sink, failure, raise_on_failure)
 
 
@@ -676,7 +681,7 @@ def _simulate_multirate(compiled: Any, until: float, controller: Controller,
         steps_rejected=sum(tr.rejected for tr in tracks), step_sizes=all_steps, wall_s=wall,
         time_in_models={tr.name: tr.time_in_model for tr in tracks},
         store=str(store) if store is not None else None, error=err, reference=ref_values,
-        models=models)
+        models=models, error_estimate=race.error_estimate())
     return _finish(result, sink, failure, raise_on_failure)
 
 

@@ -47,11 +47,11 @@ def test_multirate_beats_the_synchronous_master_at_equal_error(mixed) -> None:
     # issue 4 acceptance on the mixed pendulum: fewer calls than Gauss-Seidel + pc for the
     # same measured error, the synchronous calls interpolated (log-log) between two tolerances
     multi = run(mixed, 1e-4, 3.0)
-    sync = [run(mixed, tol, 3.0, MasterOptions("gauss-seidel", 2)) for tol in (1e-3, 1e-4)]
+    sync = [run(mixed, tol, 3.0, MasterOptions("gauss-seidel", 2)) for tol in (1e-3, 1e-4, 1e-5)]
     errs = np.log([r.error.max_abs for r in sync])
     calls = np.log([r.calls_total for r in sync])
     err = np.log(multi.error.max_abs)
-    assert errs[1] <= err <= errs[0], (multi.error.max_abs, [r.error.max_abs for r in sync])
+    assert errs[-1] <= err <= errs[0], (multi.error.max_abs, [r.error.max_abs for r in sync])
     same = float(np.exp(np.interp(err, errs[::-1], calls[::-1])))
     assert same / multi.calls_total > 1.1, (same, multi.calls_total)  # measured 1.31
 
@@ -76,7 +76,9 @@ def test_a_stiff_fast_bar_starts_without_stalling(examples, tmp_path) -> None:
 
 def test_multirate_error_falls_with_the_tolerance(mixed) -> None:
     loose, tight = (run(mixed, tol, 2.0).error.max_abs for tol in (1e-3, 1e-5))
-    assert loose / tight > 20, (loose, tight)  # measured 48 for the 100x tighter tol
+    # measured 19 for the 100x tighter tol (48 before the PI control settled at its target
+    # ratio instead of 4 % of it: the loose run's error grew more than the tight one's)
+    assert loose / tight > 10, (loose, tight)
 
 
 def test_linear_problem_6_against_the_exact_solution(linear) -> None:

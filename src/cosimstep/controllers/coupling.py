@@ -57,17 +57,38 @@ class _PolicyController(Controller):
     def __init__(self, tol: float = 1e-4, h0: float | None = None, **policy: Any) -> None:
         self.policy = StepPolicy(tol=float(tol), **policy)
         self.h0 = h0
+        self.error_estimate: float | None = None  # the run's global error estimate (scaled)
+        self._spent: np.ndarray | None = None
 
     def initial_step(self, t0: float, t_end: float) -> float:
         self.policy.start(t0, t_end)
+        self._spent = None
+        self.error_estimate = 0.0
         h0 = self.h0 if self.h0 is not None else 1e-4 * (t_end - t0)
         return min(max(h0, self.policy.hmin), self.policy.hmax)
+
+    def _account(self, error: np.ndarray, values: np.ndarray) -> None:
+        """Add an accepted step's local error estimate to the run's global error estimate.
+
+        The estimate is the running sum of the local estimates, per output, in the norm
+        ``tol`` bounds (``|e| / (atol/tol + rtol/tol·|y|)``, i.e. ``|e| / (1 + |y|)`` with the
+        default ``atol = rtol = tol``): what the error would be if every step's error were
+        carried to the end unchanged. Errors that decay (damped, stiff) or partly cancel
+        (oscillations) make it an overestimate; docs/benchmarks.md has the measured ratios.
+        """
+        if error.shape != values.shape:
+            return  # an estimate over a subset of the outputs (``defect``): not summable
+        self._spent = np.abs(error) if self._spent is None else self._spent + np.abs(error)
+        scale = self.policy.scale(values) / self.policy.tol
+        self.error_estimate = max(self.error_estimate, float(np.max(self._spent / scale)))
 
     def _decide(self, ctx: StepContext, token: Any, t: float, h: float, y: np.ndarray,
                 error: np.ndarray, values: np.ndarray, k: float, names: list[str]) -> Attempt:
         """Accept or reject (restoring the models to ``t``) and propose the next step."""
         ratio, i = self.policy.ratio(error, values, h)
         accepted = ratio <= 1.0
+        if accepted:
+            self._account(error, values)
         k = (k if self.policy.global_error else k + 1) + self.policy.extra_power
         h_next = self.policy.next_step(h, ratio, k, accepted)
         if not accepted:

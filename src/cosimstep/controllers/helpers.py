@@ -75,8 +75,9 @@ def fixed_step_from(step_sizes: np.ndarray, skip: int = 20, quantile: float = 0.
 class Switching(Controller):
     """A fixed step while the dynamics are smooth, an adaptive controller otherwise (5.1).
 
-    Starts adaptive. After ``calm`` accepted adaptive steps in a row with error ratio below 0.5 it
-    switches to a fixed step (``step``, or the adaptive controller's current step). On the fixed
+    Starts adaptive. After ``calm`` accepted adaptive steps without a rejection by more than 2×
+    the allowed error (the ratio scatters around the step control's target, so an occasional
+    rejection just above 1 is no change of the dynamics) it switches to a fixed step (``step``, or the adaptive controller's current step). On the fixed
     step it watches the cost-free input defect (fig. 87) against the same tolerance; a step
     outside the band is rejected and the adaptive controller takes over from it.
     """
@@ -106,7 +107,7 @@ class Switching(Controller):
     def attempt(self, ctx: StepContext, t: float, h: float) -> Attempt:
         if self._fixed is None:
             a = self._inner.attempt(ctx, t, h)
-            if a.accepted and a.error is not None and a.error < 0.5:
+            if a.accepted:
                 self._recent.append(h)
                 if len(self._recent) >= self.calm:
                     # the step the adaptive controller has settled on, not the smallest calm
@@ -115,7 +116,7 @@ class Switching(Controller):
                     self._fixed = self.step or min(h, a.h_next)
                     self.switches += 1
                     return Attempt(a.y, True, self._fixed, a.error)
-            elif a.accepted:
+            elif a.error is None or a.error > 2.0:  # not the scatter around the step's target
                 self._recent = []
             return a
         token = ctx.save()
