@@ -52,7 +52,11 @@ def main() -> None:
               "(hold, linear, pchip, spline-not-a-knot, ...; default: local cubic).")
 @click.option("--controller", type=click.Choice(sorted(CONTROLLERS)), help="Step controller.")
 @click.option("--step", type=float, help="Fixed step (controller fixed) or initial step [s].")
-@click.option("--tol", type=float, help="Tolerance of an adaptive controller.")
+@click.option("--tol", type=float,
+              help="Tolerance of an adaptive controller: the sum of its local error estimates "
+              "over the run, in |e| / (1 + |y|) (atol = rtol = tol; set apart with --opt atol=.. "
+              "--opt rtol=..), is held to TOL. --json reports the measured error in that norm "
+              "(error.max_scaled, with a reference) and the run's own estimate (error_estimate).")
 @click.option("--seed", type=int, help="Seed of the random controller.")
 @click.option("--opt", "options", multiple=True, metavar="KEY=VALUE",
               help="Controller option, repeatable, e.g. --opt mode=reference --opt hmax=0.02.")
