@@ -53,6 +53,7 @@ cubic-against-quartic difference at the newest interval overstates what a consum
 (consumers mostly read through centred stencils, and local errors of oscillating systems partly
 cancel). At tol 1e-4, 0.3 put the mixed pendulums, problem 6 and problem 9 at 0.03–4.4 × tol;
 0.1 left the λ = 10 / 30 pendulums at 25× / 39×, 1.0 cost 30 % more calls for 2–3× less error."""
+MAX_RESYNC = 3  # rollback rounds per pending step (guard against endless re-synchronization)
 MAX_PIECES = 64  # a pending step is re-run as at most this many steps
 FAILED_TRIAL_SHRINK = 0.25  # step factor after a trial step the sub-model failed on
 ALIAS = 0.3  # relative slope mismatch beyond which a grey-box step counts as unresolved
@@ -78,6 +79,9 @@ class Track:
     corrections: int = 0
     verified: int = 0
     failed_trials: int = 0  # rejections because the sub-model failed on the trial step
+    rollbacks: int = 0  # times it was rolled back to re-run with a partner's corrected values
+    states: dict[int, Any] = field(default_factory=dict)  # saved state at times[i], by i
+    version: int = 0  # bumped by a rollback (stale queue entries are skipped)
     spent_out: float = 0.0  # Σ estimated errors its interpolated trajectory caused in consumers
     spent_in: float = 0.0  # Σ estimated errors from inputs its steps did not resolve
     steps: list[float] = field(default_factory=list)
@@ -145,6 +149,7 @@ class Multirate:
                        for k, n in enumerate(system.names)]
         self.events: list[float] = []
         self.until = math.inf
+        self._requeue: list[int] = []  # sub-models rolled back since the queue last saw them
         self.on_attempt: Any = None  # on_attempt(name, t, h, accepted): for the results store
 
     # -- partners' trajectories ----------------------------------------------------------------
@@ -316,36 +321,95 @@ class Multirate:
         return max(known) if len(known) == len(gains) else max([INITIAL_GAIN, *known])
 
     # -- the verification of a pending step ------------------------------------------------------
-    def verify(self, k: int) -> None:
-        """Compare the inputs a pending step assumed with those that happened; correct if needed."""
+    def verify(self, k: int) -> bool:
+        """Compare the inputs a pending step assumed with those that happened; correct if needed.
+
+        Returns whether partners were rolled back because the correction changed what they had
+        read (:meth:`_resynchronize`); ``k`` must then wait for them to catch up again.
+        """
         tr = self.tracks[k]
         if tr.pending is None:
-            return
-        token, t0, h, assumed = tr.pending
+            return False
+        token, t0, h, assumed, rounds, first = tr.pending
         tr.pending = None
         actual, _ = self.inputs_over(k, t0, h)
         scale = tr.policy.scale(actual)
         delta = float(np.max(np.mean(np.abs(actual - assumed) / scale, axis=0)))
         tr.verified += 1
         if delta == 0.0:
-            return
+            return False
         y_old = tr.rows[-1]
         model = self.system.models[k]
         self._guard(k, t0, model.restore_state, token)
         pieces = self._pieces(tr, t0, h, actual, y_old)
-        if pieces > 1:
-            self._split(tr, t0, h, pieces)
-            return
-        y = self.run_step(k, t0, h, actual)
-        tr.corrections += 1
-        tr.rows[-1] = y
+        self._rerun(tr, first, pieces, actual if pieces == 1 else None)
+        change = np.abs(tr.rows[-1] - y_old)
+        if np.any(change > 1e3 * np.finfo(float).eps
+                                  * np.maximum(np.abs(tr.rows[-1]), 1e-300)):
+            gain = float(np.max(change / tr.policy.scale(tr.rows[-1]))) / (h * delta)
+            tr.gain = gain if tr.gain is None else max(gain, 0.5 * tr.gain)
+        if rounds >= MAX_RESYNC:
+            return False
+        moved = float(np.max(change / tr.policy.scale(tr.rows[-1])))
+        if not self._resynchronize(k, t0, moved):
+            return False
+        # the correction read the partners' trajectories that were just discarded: check it
+        # again against the ones they will compute now
+        tr.pending = (token, t0, h, actual, rounds + 1, first)
+        return True
+
+    def _resynchronize(self, k: int, t0: float, moved: float) -> bool:
+        """Roll back the consumers of ``k`` that read its provisional trajectory after ``t0``
+        where the correction moved it too much for their tolerance (thesis 4.3.5: partial
+        re-synchronization by rollback).
+
+        A consumer that ran ahead through ``k``'s pending step interpolated its provisional
+        points, and those steps passed their own verification against them. ``moved`` is the
+        correction's change at the step's end (scaled); the consumer's error from it is about
+        its sensitivity × the time it ran on the old trajectory × ``moved / 2`` (the change
+        grows from nothing at ``t0``). Returns whether any consumer was rolled back.
+        """
+        rolled = False
+        for c in self.consumers[k]:
+            other = self.tracks[c]
+            if c == k or other.t <= t0 * (1 + 1e-12) + 1e-15:
+                continue
+            overlap = min(other.t, self.tracks[k].t) - t0
+            gain = other.gain if other.gain is not None else INITIAL_GAIN
+            y = other.rows[-1]
+            ratio, _ = other.policy.ratio(gain * overlap * 0.5 * moved * other.policy.scale(y),
+                                          y, overlap)
+            if ratio > 1.0:
+                rolled |= self._rollback(c, t0, k)
+        return rolled
+
+    def _rollback(self, k: int, t0: float, origin: int) -> bool:
+        """Restore ``k`` to its last saved point at or before ``t0`` and drop what came after
+        (those steps count as re-runs: ``corrections``). Consumers of ``k`` that ran past that
+        point are rolled back with it, except ``origin``, whose corrected step caused this (it
+        is verified again instead)."""
+        tr = self.tracks[k]
+        candidates = [i for i in tr.states if tr.times[i] <= t0 * (1 + 1e-12) + 1e-15
+                      and i >= tr.segment]
+        if not candidates:
+            return False
+        i = max(candidates)
+        self._guard(k, tr.times[i], self.system.models[k].restore_state, tr.states[i])
+        dropped = len(tr.times) - 1 - i
+        del tr.times[i + 1:], tr.rows[i + 1:], tr.steps[i:]
         if tr.slopes:
-            tr.slopes[-1] = self._slope(k, tr.t)
-        change = np.abs(y - y_old)
-        if np.all(change <= 1e3 * np.finfo(float).eps * np.maximum(np.abs(y), 1e-300)):
-            return  # the inputs moved too little to measure anything above round-off
-        gain = float(np.max(change / tr.policy.scale(y))) / (h * delta)
-        tr.gain = gain if tr.gain is None else max(gain, 0.5 * tr.gain)
+            del tr.slopes[i + 1:]
+        tr.states = {j: s for j, s in tr.states.items() if j <= i}
+        tr.accepted -= dropped
+        tr.corrections += dropped
+        tr.rollbacks += 1
+        tr.pending = None
+        tr.version += 1
+        self._requeue.append(k)
+        for c in self.consumers[k]:
+            if c not in (k, origin) and self.tracks[c].t > tr.t:
+                self._rollback(c, tr.t, origin)
+        return True
 
     def _pieces(self, tr: Track, t0: float, h: float, actual: np.ndarray,
                 y: np.ndarray) -> int:
@@ -361,27 +425,51 @@ class Multirate:
         # in the receiver like h^5
         return int(min(MAX_PIECES, math.ceil((ratio / tr.policy.safety) ** 0.2)))
 
-    def _split(self, tr: Track, t0: float, h: float, pieces: int) -> None:
-        """Re-run the (restored) pending step ``[t0, t0 + h]`` as ``pieces`` equal steps with
-        the inputs that happened; they replace its end point in the trajectory."""
+    def _rerun(self, tr: Track, first: int, pieces: int, inputs: np.ndarray | None) -> None:
+        """Re-run the (restored) pending step from point ``first`` to the track's last point
+        with the inputs that happened; the new points replace those after ``first`` (the step's
+        end point, or the pieces of an earlier re-run).
+
+        One step when ``pieces`` is 1; otherwise steps of about ``1/pieces`` of it, each
+        shortened until it resolves its inputs (:meth:`input_resolution`: no call needed to
+        check) — a first guess from the whole step's deviation cannot see how fast the partner
+        moves inside it.
+        """
         k = tr.index
-        t_end = tr.times[-1]
-        del tr.times[-1], tr.rows[-1], tr.steps[-1]
+        t0, t_end = tr.times[first], tr.times[-1]
+        h = t_end - t0
+        dropped = len(tr.times) - 1 - first
+        del tr.times[first + 1:], tr.rows[first + 1:], tr.steps[first:]
         if tr.slopes:
-            del tr.slopes[-1]
-        tr.corrections += 1  # the first piece re-runs the step's start; the rest are new steps
-        tr.accepted += pieces - 1
-        for i in range(pieces):
-            t = t0 + i * h / pieces
-            step = (t_end - t) if i == pieces - 1 else h / pieces
-            inputs, _ = self.inputs_over(k, t, step)
-            y = self.run_step(k, t, step, inputs)
-            tr.times.append(t_end if i == pieces - 1 else t + step)
+            del tr.slopes[first + 1:]
+        tr.states = {i: s for i, s in tr.states.items() if i <= first}
+        tr.corrections += dropped  # the dropped steps count as re-runs, the new ones as accepted
+        t, step_try, made = t0, h / pieces, 0
+        gain = tr.gain if tr.gain is not None else INITIAL_GAIN
+        while t < t_end:
+            step = min(step_try, t_end - t)
+            if t_end - t - step < 1e-9 * h:
+                step = t_end - t
+            u = inputs if inputs is not None else self.inputs_over(k, t, step)[0]
+            if inputs is None and step > tr.policy.hmin:
+                fed = gain * step * self.input_resolution(k, t, step, u)
+                ratio, _ = tr.policy.ratio(fed * tr.policy.scale(tr.rows[-1]), tr.rows[-1], step)
+                if ratio > 1.0:
+                    step_try = step * max(0.1, tr.policy.safety * ratio ** -0.2)
+                    continue
+            if made:
+                tr.states[len(tr.times) - 1] = self._guard(k, t, self.system.models[k].save_state)
+            y = self.run_step(k, t, step, u)
+            made += 1
+            t = t_end if step == t_end - t else t + step
+            tr.times.append(t)
             tr.rows.append(y)
             tr.steps.append(step)
-            slope = self._slope(k, tr.times[-1])
+            slope = self._slope(k, t)
             if slope is not None:
                 tr.slopes.append(slope)
+            step_try = min(2.0 * step, h / pieces)
+        tr.accepted += made - dropped
         tr.h = min(tr.h, h / pieces)
 
     # -- one step of the sub-model farthest behind -----------------------------------------------
@@ -390,8 +478,9 @@ class Multirate:
 
         Returns whether it landed on ``landing``.
         """
-        self.verify(k)
         tr = self.tracks[k]
+        if self.verify(k):
+            return False
         model = self.system.models[k]
         pol = tr.policy
         t = tr.t
@@ -448,7 +537,8 @@ class Multirate:
         tr.steps.append(h)
         if self.on_attempt is not None:
             self.on_attempt(tr.name, t, h, True)
-        tr.pending = (token, t, h, inputs) if extrapolated else None
+        tr.pending = (token, t, h, inputs, 0, len(tr.times) - 1) if extrapolated else None
+        tr.states[len(tr.times) - 1] = token
         tr.times.append(landing if lands else t + h)
         tr.rows.append(y)
         if slope is not None:
@@ -498,11 +588,29 @@ class Multirate:
 
         ``on_step(track)`` is called after every accepted step (progress, storage).
         """
-        queue = [(tr.t, tr.index) for tr in self.tracks]
+        queue = [(tr.t, tr.index, tr.version) for tr in self.tracks]
         heapq.heapify(queue)
-        while queue:
-            t, k = heapq.heappop(queue)
+        while True:
+            self._race(queue, until, on_step)
+            for k in range(len(self.tracks)):  # the last steps: partners are all at ``until``
+                self.verify(k)
+            if not self._requeue:
+                break
+            self._requeue_into(queue)
+
+    def _requeue_into(self, queue: list) -> None:
+        """Put rolled-back sub-models (and whoever waits on them) back into the race."""
+        for k in sorted(set(self._requeue)):
             tr = self.tracks[k]
+            heapq.heappush(queue, (tr.t, k, tr.version))
+        self._requeue.clear()
+
+    def _race(self, queue: list, until: float, on_step: Any) -> None:
+        while queue:
+            t, k, version = heapq.heappop(queue)
+            tr = self.tracks[k]
+            if version != tr.version:
+                continue  # queued before a rollback moved it back
             i = bisect.bisect_right(self.events, t + 1e-12 * max(1.0, abs(t)))
             landing = min(self.events[i], until) if i < len(self.events) else until
             lands = self.advance(k, landing)
@@ -510,10 +618,25 @@ class Multirate:
                 tr.segment = len(tr.times) - 1  # a time event: extrapolate from here on only
             if on_step is not None:
                 on_step(tr)
+            if tr.version != version:
+                continue  # rolled back meanwhile: requeued below with its new time
             if not (lands and landing >= until):
-                heapq.heappush(queue, (tr.t, k))
-        for k in range(len(self.tracks)):  # the last steps: partners are all at ``until`` now
-            self.verify(k)
+                heapq.heappush(queue, (tr.t, k, tr.version))
+            if self._requeue:
+                self._requeue_into(queue)
+            if len(tr.times) % 64 == 0:
+                self._forget_states()
+
+    def _forget_states(self) -> None:
+        """Drop saved states no rollback can reach: before every sub-model's previous point
+        (a pending step starts there, and a rollback goes to at most its start)."""
+        horizon = min(tr.times[-2] if len(tr.times) > 1 else tr.times[-1]
+                      for tr in self.tracks)
+        for tr in self.tracks:
+            keep = [i for i in tr.states if tr.times[i] >= horizon]
+            floor = max((i for i in tr.states if tr.times[i] < horizon), default=None)
+            tr.states = {i: tr.states[i] for i in [*keep, *([floor] if floor is not None
+                                                              else [])]}
 
     def error_estimate(self) -> float:
         """The run's global error estimate, in the norm ``tol`` bounds (``|e| / (1 + |y|)`` for

@@ -112,7 +112,9 @@ class StepPolicy:
         shows on smooth problems.
     target:
         The error ratio the PI control settles at. Ratios scatter around it from step to step,
-        so a target near 1 rejects often: on the toggled pendulum (tol 1e-5) 0.7 rejected 14 % of the steps and needed 1.46× fewer calls than the fixed step at equal error, 0.5 rejected 10 % for 1.7×.
+        so a target near 1 rejects often: on the toggled pendulum (tol 1e-5) 0.7 rejected 14 %
+        of the steps and needed 1.46× fewer calls than the fixed step at equal error, 0.5
+        rejected 10 % for 1.7×.
     global_error:
         The tolerance bounds the *global* error over the run: each step may spend a share of it
         proportional to its length (error per unit step, scaled by the run length). Without it,

@@ -77,7 +77,8 @@ class Switching(Controller):
 
     Starts adaptive. After ``calm`` accepted adaptive steps without a rejection by more than 2×
     the allowed error (the ratio scatters around the step control's target, so an occasional
-    rejection just above 1 is no change of the dynamics) it switches to a fixed step (``step``, or the adaptive controller's current step). On the fixed
+    rejection just above 1 is no change of the dynamics) it switches to a fixed step
+    (``step``, or the adaptive controller's current step). On the fixed
     step it watches the cost-free input defect (fig. 87) against the same tolerance; a step
     outside the band is rejected and the adaptive controller takes over from it.
     """
@@ -116,7 +117,7 @@ class Switching(Controller):
                     self._fixed = self.step or min(h, a.h_next)
                     self.switches += 1
                     return Attempt(a.y, True, self._fixed, a.error)
-            elif a.error is None or a.error > 2.0:  # not the scatter around the step's target
+            elif a.error is None or a.error > 2.0:  # not the scatter around the target
                 self._recent = []
             return a
         token = ctx.save()
