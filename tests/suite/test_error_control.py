@@ -1,0 +1,62 @@
+"""Error control on the suite's fast subset: what `tol` promises and what the run says it did.
+
+Each case runs a suite problem over its short horizon (``Problem.quick_until``). The bounds are
+the issue's targets (delivered error / tol in [0.1, 10], own estimate / delivered error in
+[0.2, 5]) on the cases that meet them; the measured values are in the comments. The whole
+suite at full length is a benchmark (``benchmarks/suite.py``, docs/benchmarks.md), not a test.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+import cosimstep as cs
+from cosimstep import suite
+
+
+def _run(name: str, master: str, tol: float) -> cs.SimulationResult:
+    problem = suite.get(name)
+    system, reference = problem.build()
+    return cs.simulate(system, problem.quick_until, cs.make_controller("pc", None, tol),
+                       cs.MasterOptions(master, 2), reference=reference)
+
+
+# measured err/tol, estimate/err at tol 1e-3 and 1e-5:
+# pendulum_mixed 0.77, 0.50 / 1.42, 0.38; duplicated_state 0.72, 0.51 / 1.21, 0.47;
+# two_mass_stiff 2.1, 0.80 / 4.2, 0.47
+@pytest.mark.parametrize("tol", [1e-3, 1e-5])
+@pytest.mark.parametrize("name", ["pendulum_mixed", "duplicated_state", "two_mass_stiff"])
+def test_pc_delivers_the_tolerance_and_knows_it(name, tol) -> None:
+    result = _run(name, "gauss-seidel", tol)
+    assert result.success, result.message
+    err = result.error.max_scaled
+    assert 0.1 <= err / tol <= 10.0, err / tol
+    assert 0.2 <= result.error_estimate / err <= 5.0, result.error_estimate / err
+
+
+# measured estimate/err: duplicated_state 0.75 / 1.5, two_mass_stiff 1.3 / 1.2 (err/tol
+# 0.11 / 0.088 and 0.065 / 0.017: multi-rate delivers more accuracy than asked here)
+@pytest.mark.parametrize("tol", [1e-3, 1e-5])
+@pytest.mark.parametrize("name", ["duplicated_state", "two_mass_stiff"])
+def test_multirate_estimates_its_error(name, tol) -> None:
+    result = _run(name, "multirate", tol)
+    assert result.success, result.message
+    err = result.error.max_scaled
+    assert err <= 10.0 * tol
+    assert 0.2 <= result.error_estimate / err <= 5.0, result.error_estimate / err
+
+
+def test_the_estimate_needs_no_reference() -> None:
+    problem = suite.get("duplicated_state")
+    system, _ = problem.build()
+    result = cs.simulate(system, problem.quick_until, cs.make_controller("pc", None, 1e-4),
+                         cs.MasterOptions("gauss-seidel", 2))
+    assert result.error is None and result.error_estimate > 0
+    assert result.summary()["error_estimate"] == result.error_estimate
+
+
+@pytest.mark.xfail(strict=True, reason="issue 13, open: after the road step the wheel runs "
+                   "through the chassis's provisional trajectory; measured 4.5e3 x tol")
+def test_multirate_quarter_car_after_the_road_step() -> None:
+    result = _run("quarter_car_announced", "multirate", 1e-5)
+    assert result.error.max_scaled <= 10 * 1e-5
