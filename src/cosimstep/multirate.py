@@ -59,6 +59,17 @@ FAILED_TRIAL_SHRINK = 0.25  # step factor after a trial step the sub-model faile
 ALIAS = 0.3  # relative slope mismatch beyond which a grey-box step counts as unresolved
 
 
+@dataclass(frozen=True)
+class _Verdict:
+    """A trial step judged: the next step, why it was rejected (``None``: accepted), and the
+    errors it adds to the run's estimate (:meth:`Multirate.error_estimate`)."""
+
+    h_next: float
+    why: str | None
+    spent_out: float
+    spent_in: float
+
+
 @dataclass
 class Track:
     """One sub-model's clock, trajectory, step control and statistics."""
@@ -497,43 +508,19 @@ class Multirate:
             except SubModelError as exc:
                 tr.h = self._failed_trial(tr, exc, token, t, h)
                 continue
-            gain = self.consumer_gain(k)
-            e = self.interpolation_error(tr, t + h, y)
-            if len(tr.times) - tr.segment < 2:  # start-up: a one-off error, not a rate
-                r = gain * h * e / pol.scale(y)
-                i = int(np.argmax(r)) if r.size else 0
-                ratio, power = (float(r[i]) if r.size else 0.0), 2
-            else:
-                ratio, i = pol.ratio(gain * h * e, y, h)
-                power = 4 + pol.extra_power
-            h_next = pol.next_step(h, ratio, power, ratio <= 1.0)
             # the slope at a time event belongs to the next segment: no alias check there
-            aliased = self.aliased(tr, t + h, y, slope) and not (lands and landing < self.until)
-            own_gain = tr.gain if tr.gain is not None else INITIAL_GAIN
-            fed = own_gain * h * self.input_resolution(k, t, h, inputs)
-            unresolved, _ = pol.ratio(fed * pol.scale(y), y, h)
-            if unresolved > 1.0:
-                h_next = min(h_next, pol.next_step(h, unresolved, 5 + pol.extra_power, False))
-            if (ratio <= 1.0 or gain == 0.0) and not aliased and unresolved <= 1.0:
+            verdict = self._judge(tr, t, h, y, inputs, slope, lands and landing < self.until)
+            if verdict.why is None:
                 break
             tr.rejected += 1
             if self.on_attempt is not None:
                 self.on_attempt(tr.name, t, h, False)
             self._guard(k, t, model.restore_state, token)
-            if aliased:
-                h_next, why = 0.5 * h, "its own slope contradicts the trajectory (aliasing)"
-            elif unresolved > 1.0:
-                why = f"its inputs vary within the step ({unresolved:.3g}× the allowed error)"
-            else:
-                name = self.system.output_names[self.system.output_slices[k].start + i]
-                why = f"{name}: interpolation error {e[i]:.3g} × sensitivity {gain:.3g}/s"
-            pol.check(t, h, h_next, why)
-            tr.h = h_next
+            pol.check(t, h, verdict.h_next, verdict.why)
+            tr.h = verdict.h_next
         tr.accepted += 1
-        tol = pol.tol
-        if gain > 0.0 and len(tr.times) - tr.segment >= 2:
-            tr.spent_out += float(np.max(gain * h * e / (pol.scale(y) / tol)))
-        tr.spent_in += fed * tol
+        tr.spent_out += verdict.spent_out
+        tr.spent_in += verdict.spent_in
         tr.steps.append(h)
         if self.on_attempt is not None:
             self.on_attempt(tr.name, t, h, True)
@@ -543,8 +530,46 @@ class Multirate:
         tr.rows.append(y)
         if slope is not None:
             tr.slopes.append(slope)
-        tr.h = h_next
+        tr.h = verdict.h_next
         return lands
+
+    def _judge(self, tr: Track, t: float, h: float, y: np.ndarray, inputs: np.ndarray,
+               slope: np.ndarray | None, at_event: bool) -> _Verdict:
+        """Accept or reject a trial step ``[t, t + h]`` of ``tr`` and propose the next step.
+
+        Three checks: consumers can interpolate the new trajectory (its interpolation error ×
+        their sensitivity), the step resolved its own inputs (:meth:`input_resolution` × its
+        sensitivity), and — grey box — its own slope agrees with the trajectory (aliasing).
+        """
+        pol = tr.policy
+        gain = self.consumer_gain(tr.index)
+        e = self.interpolation_error(tr, t + h, y)
+        startup = len(tr.times) - tr.segment < 2
+        if startup:  # a one-off error, not a rate
+            r = gain * h * e / pol.scale(y)
+            i = int(np.argmax(r)) if r.size else 0
+            ratio, power = (float(r[i]) if r.size else 0.0), 2
+        else:
+            ratio, i = pol.ratio(gain * h * e, y, h)
+            power = 4 + pol.extra_power
+        h_next = pol.next_step(h, ratio, power, ratio <= 1.0)
+        aliased = self.aliased(tr, t + h, y, slope) and not at_event
+        own_gain = tr.gain if tr.gain is not None else INITIAL_GAIN
+        fed = own_gain * h * self.input_resolution(tr.index, t, h, inputs)
+        unresolved, _ = pol.ratio(fed * pol.scale(y), y, h)
+        if unresolved > 1.0:
+            h_next = min(h_next, pol.next_step(h, unresolved, 5 + pol.extra_power, False))
+        why = None
+        if aliased:
+            h_next, why = 0.5 * h, "its own slope contradicts the trajectory (aliasing)"
+        elif unresolved > 1.0:
+            why = f"its inputs vary within the step ({unresolved:.3g}× the allowed error)"
+        elif ratio > 1.0 and gain != 0.0:
+            name = self.system.output_names[self.system.output_slices[tr.index].start + i]
+            why = f"{name}: interpolation error {e[i]:.3g} × sensitivity {gain:.3g}/s"
+        spent_out = 0.0 if gain == 0.0 or startup else \
+            float(np.max(gain * h * e / (pol.scale(y) / pol.tol)))
+        return _Verdict(h_next, why, spent_out, fed * pol.tol)
 
     def _failed_trial(self, tr: Track, exc: SubModelError, token: Any, t: float,
                       h: float) -> float:
