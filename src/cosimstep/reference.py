@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from cosimstep.adapters.ode import OdeSubModel
+from cosimstep.adapters.ode import OdeSubModel, one_side
 
 RTOL = ATOL = 1e-12
 
@@ -38,9 +38,12 @@ class Reference:
         u = np.zeros(0)
         cuts = [t0, *model.breakpoints(t0, t_end), t_end]
         self._segments = []
+        events = frozenset(model.time_events())
         for a, b in itertools.pairwise(cuts):
             p = model.parameters.at(a)
-            sol = solve_ivp(lambda s, y, p=p: model.derivative(s, y, u, p), (a, b), x,
+            lo, hi = one_side(a, b, events)
+            sol = solve_ivp(lambda s, y, p=p, lo=lo, hi=hi:
+                            model.derivative(min(max(s, lo), hi), y, u, p), (a, b), x,
                             method="DOP853", rtol=RTOL, atol=ATOL, dense_output=True)
             if not sol.success:
                 raise RuntimeError(f"reference solution failed on [{a}, {b}]: {sol.message}")

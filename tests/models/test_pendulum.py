@@ -68,3 +68,33 @@ def test_small_angle_form_is_the_linearization():
     non = chain_accelerations(theta, omega, _params((1, 1), (1, 0.5), 0.0), 2)
     # relative difference of the order of the squared amplitude (1e-8), far below first order
     assert np.max(np.abs(lin - non)) < 1e-5 * np.max(np.abs(lin))
+
+
+def test_a_jump_written_as_a_function_of_time_is_integrated_on_its_own_side() -> None:
+    # x' = [t >= 1]: the last RK4 stage of a step ending at the announced event t = 1 must see
+    # the value before the jump (measured 1.7e-3 instead of 0 without keeping stages on their
+    # piece's side)
+    import numpy as np
+
+    from cosimstep import RK4, OdeSubModel, Port, Reference
+
+    def rhs(t, x, u, p):
+        return np.array([1.0 if t >= 1.0 else 0.0])
+
+    model = OdeSubModel(rhs, [Port("x", "1", 0.0)], solver=RK4(max_dt=0.01), time_events=[1.0])
+    assert model.time_events() == (1.0,)
+    model.initialize(0.0)
+    model.do_step(0.0, 1.0)
+    assert model.get_outputs()[0] == 0.0
+    model.do_step(1.0, 0.5)
+    assert abs(model.get_outputs()[0] - 0.5) < 1e-14
+    straddle = OdeSubModel(rhs, [Port("x", "1", 0.0)], solver=RK4(max_dt=0.01),
+                           time_events=[1.0])
+    straddle.initialize(0.0)
+    straddle.do_step(0.0, 1.5)  # a step across the event is integrated piecewise
+    assert abs(straddle.get_outputs()[0] - 0.5) < 1e-14
+    reference = Reference(OdeSubModel(rhs, [Port("x", "1", 0.0)], time_events=[1.0]),
+                          {"m.x": "x"})
+    reference.solve(0.0, 2.0)
+    values = reference.values(np.array([1.0, 2.0]), ["m.x"])[:, 0]
+    assert abs(values[0]) < 1e-12 and abs(values[1] - 1.0) < 1e-12

@@ -67,6 +67,20 @@ class ParameterSchedule:
         return [t for t in self.times if t0 < t < t1]
 
 
+def one_side(a: float, b: float, events: set[float] | frozenset[float]) -> tuple[float, float]:
+    """The times a right-hand side is evaluated at on the piece ``[a, b]``, kept on the piece's
+    own side of a time event at either end.
+
+    A solver's stage at ``b`` would otherwise see the value after a jump at ``b`` written as a
+    function of time (``0.05 if t >= 1 else 0``) — a wrong force for a whole stage (measured:
+    x' = [t >= 1] integrated by RK4 to t = 1 with 0.01 s steps gave 1.7e-3 instead of 0).
+    The shift is a few ulps of ``t``.
+    """
+    lo = math.nextafter(a, b) if a in events else a
+    hi = math.nextafter(b, a) if b in events else b
+    return lo, hi
+
+
 class InternalSolver(Protocol):
     """Advances ``dx/dt = f(t, x)`` from ``t0`` to ``t1``; the sub-model's own business."""
 
@@ -211,10 +225,16 @@ class OdeSubModel(SubModel):
 
         x = self._x
         rhs = self._rhs
-        cuts = [t, *self.breakpoints(t, t + h), t + h]
+        inner = self.breakpoints(t, t + h)
+        cuts = [t, *inner, t + h]
+        events = set(inner) | ({t} if t in self._events else set()) \
+            | ({t + h} if t + h in self._events else set())
         for a, b in itertools.pairwise(cuts):
             p = self.parameters.at(a)
-            x = self.solver.advance(lambda s, y, p=p: rhs(s, y, inputs_at(s), p), a, b, x)
+            lo, hi = one_side(a, b, events)
+            x = self.solver.advance(
+                lambda s, y, p=p, lo=lo, hi=hi: rhs(min(max(s, lo), hi), y, inputs_at(s), p),
+                a, b, x)
         self._x = np.asarray(x, dtype=float)
         self._t = t + h
         # The input polynomial is re-expanded around the new time so outputs and derivatives
