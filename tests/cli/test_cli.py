@@ -182,3 +182,17 @@ def test_rollback_without_state_saving_is_a_configuration_error(tmp_path):
         assert res.exit_code == 2, res.output
         assert "clock cannot save and restore its state" in res.output
         assert "--controller fixed" in res.output
+
+
+def test_run_estimate_rerun_reports_its_estimate_and_cost(examples, tmp_path):
+    res = CliRunner().invoke(main, ["run", str(examples / "linear_coupled.toml"), "--json",
+                                    "--tol", "1e-3", "--until", "0.5", "--estimate", "rerun",
+                                    "--out", str(tmp_path / "r.db")])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.output)
+    assert summary["error_estimate"] > 0 and summary["error"]["max_scaled"] > 0
+    assert 0 < summary["error_estimate_calls"] < summary["calls_total"]
+    bad = CliRunner().invoke(main, ["run", str(examples / "linear_coupled.toml"), "--controller",
+                                    "fixed", "--step", "0.01", "--estimate", "rerun", "--out",
+                                    str(tmp_path / "f.db")])
+    assert bad.exit_code == 2 and "--estimate" in bad.output and "give --tol" in bad.output
