@@ -192,7 +192,8 @@ def test_run_estimate_rerun_reports_its_estimate_and_cost(examples, tmp_path):
     summary = json.loads(res.output)
     assert summary["error_estimate"] > 0 and summary["error"]["max_scaled"] > 0
     assert 0 < summary["error_estimate_calls"] < summary["calls_total"]
-    bad = CliRunner().invoke(main, ["run", str(examples / "linear_coupled.toml"), "--controller",
-                                    "fixed", "--step", "0.01", "--estimate", "rerun", "--out",
+    slow = str(examples / "double_pendulum_slow.toml")
+    bad = CliRunner().invoke(main, ["run", slow, "--controller", "fixed", "--step", "0.01",
+                                    "--estimate", "rerun", "--out",
                                     str(tmp_path / "f.db")])
     assert bad.exit_code == 2 and "--estimate" in bad.output and "give --tol" in bad.output
