@@ -691,11 +691,12 @@ class Multirate:
 def _copy_policy(policy: StepPolicy) -> StepPolicy:
     """Each sub-model's own copy of the controller's policy, with the global-error budget the
     multi-rate estimate's :data:`CALIBRATION` was measured with (``distribute``, cancellation
-    3). The synchronous controllers dropped both (docs/concepts.md); re-measured here with
-    them dropped too, the mixed pendulum went from 2.2–6.2× tol to 2.6–12.7× (tol 1e-2…1e-6),
-    so the multi-rate step control keeps them until its estimate is recalibrated."""
+    3, the step control settling at ratio 0.5). The synchronous controllers changed all three
+    (docs/concepts.md); with them changed here too, the mixed pendulum went from 2.2–6.2× tol
+    to 2.6–12.7× (tol 1e-2…1e-6), so the multi-rate step control keeps them until its
+    estimate is recalibrated."""
     fields = {k: v for k, v in vars(policy).items() if not k.startswith("_")}
-    fields.update(distribute=True, cancellation=3.0)
+    fields.update(distribute=True, cancellation=3.0, target=0.5)
     return StepPolicy(**fields)
 
 
