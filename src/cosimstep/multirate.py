@@ -394,6 +394,16 @@ class Multirate:
                 rolled |= self._rollback(c, t0, k)
         return rolled
 
+    def _segment_start(self, tr: Track) -> int:
+        """Index of the track's first point at or after the last time event it has reached
+        (points move when steps are re-run or dropped; extrapolation restarts there)."""
+        t = tr.t
+        i = bisect.bisect_right(self.events, t + 1e-12 * max(1.0, abs(t)))
+        if i == 0:
+            return 0
+        event = self.events[i - 1]
+        return bisect.bisect_left(tr.times, event - 1e-9 * max(1.0, abs(event)))
+
     def _rollback(self, k: int, t0: float, origin: int) -> bool:
         """Restore ``k`` to its last saved point at or before ``t0`` and drop what came after
         (those steps count as re-runs: ``corrections``). Consumers of ``k`` that ran past that
@@ -403,7 +413,10 @@ class Multirate:
         candidates = [i for i in tr.states if tr.times[i] <= t0 * (1 + 1e-12) + 1e-15
                       and i >= tr.segment]
         if not candidates:
-            return False
+            if tr.times[tr.segment] <= t0 * (1 + 1e-12) + 1e-15:
+                raise RuntimeError(f"multirate: no saved state of '{tr.name}' at or before "
+                                   f"t = {t0:.9g} to roll back to (internal error)")
+            return False  # t0 lies before a time event the track has passed: nothing to redo
         i = max(candidates)
         self._guard(k, tr.times[i], self.system.models[k].restore_state, tr.states[i])
         dropped = len(tr.times) - 1 - i
@@ -411,6 +424,7 @@ class Multirate:
         if tr.slopes:
             del tr.slopes[i + 1:]
         tr.states = {j: s for j, s in tr.states.items() if j <= i}
+        tr.segment = self._segment_start(tr)
         tr.accepted -= dropped
         tr.corrections += dropped
         tr.rollbacks += 1
@@ -482,6 +496,7 @@ class Multirate:
             step_try = min(2.0 * step, h / pieces)
         tr.accepted += made - dropped
         tr.h = min(tr.h, h / pieces)
+        tr.segment = self._segment_start(tr)
 
     # -- one step of the sub-model farthest behind -----------------------------------------------
     def advance(self, k: int, landing: float) -> bool:
@@ -552,21 +567,24 @@ class Multirate:
         else:
             ratio, i = pol.ratio(gain * h * e, y, h)
             power = 4 + pol.extra_power
-        h_next = pol.next_step(h, ratio, power, ratio <= 1.0)
         aliased = self.aliased(tr, t + h, y, slope) and not at_event
         own_gain = tr.gain if tr.gain is not None else INITIAL_GAIN
         fed = own_gain * h * self.input_resolution(tr.index, t, h, inputs)
         unresolved, _ = pol.ratio(fed * pol.scale(y), y, h)
-        if unresolved > 1.0:
-            h_next = min(h_next, pol.next_step(h, unresolved, 5 + pol.extra_power, False))
         why = None
         if aliased:
-            h_next, why = 0.5 * h, "its own slope contradicts the trajectory (aliasing)"
+            why = "its own slope contradicts the trajectory (aliasing)"
         elif unresolved > 1.0:
             why = f"its inputs vary within the step ({unresolved:.3g}× the allowed error)"
         elif ratio > 1.0 and gain != 0.0:
             name = self.system.output_names[self.system.output_slices[tr.index].start + i]
             why = f"{name}: interpolation error {e[i]:.3g} × sensitivity {gain:.3g}/s"
+        # the step control's memory (PI, mean step) sees only the steps that are kept
+        h_next = pol.next_step(h, ratio, power, why is None)
+        if unresolved > 1.0:
+            h_next = min(h_next, pol.next_step(h, unresolved, 5 + pol.extra_power, False))
+        if aliased:
+            h_next = 0.5 * h
         spent_out = 0.0 if gain == 0.0 or startup else \
             float(np.max(gain * h * e / (pol.scale(y) / pol.tol)))
         return _Verdict(h_next, why, spent_out, fed * pol.tol)
@@ -653,9 +671,12 @@ class Multirate:
                 self._forget_states()
 
     def _forget_states(self) -> None:
-        """Drop saved states no rollback can reach: before every sub-model's previous point
-        (a pending step starts there, and a rollback goes to at most its start)."""
-        horizon = min(tr.times[-2] if len(tr.times) > 1 else tr.times[-1]
+        """Drop saved states no rollback can reach. A rollback goes back to the start of a
+        pending step (its first point, which after a re-run in pieces lies before the track's
+        previous point) or to a track's previous point; each track keeps one state before
+        the earliest of those, for consumers rolled back with a partner."""
+        horizon = min(tr.times[tr.pending[5]] if tr.pending is not None
+                      else tr.times[-2] if len(tr.times) > 1 else tr.times[-1]
                       for tr in self.tracks)
         for tr in self.tracks:
             keep = [i for i in tr.states if tr.times[i] >= horizon]

@@ -38,7 +38,7 @@ class Reference:
         u = np.zeros(0)
         cuts = [t0, *model.breakpoints(t0, t_end), t_end]
         self._segments = []
-        events = frozenset(model.time_events())
+        events = frozenset(model.breakpoints(t0, t_end))
         for a, b in itertools.pairwise(cuts):
             p = model.parameters.at(a)
             lo, hi = one_side(a, b, events)

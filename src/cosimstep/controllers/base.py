@@ -160,13 +160,13 @@ class StepPolicy:
                 and 0 < self.target < 1):
             raise ValueError("need 0 < shrink < 1 < grow, 0 < safety <= 1, 0 < target < 1")
         self._span = 1.0
-        self._previous = 1.0
+        self._previous = self.target
         self._inverse_sum = 0.0  # Σ 1/h over accepted steps
         self._elapsed = 0.0
 
     def start(self, t0: float, t_end: float) -> None:
         self._span = t_end - t0
-        self._previous = 1.0
+        self._previous = self.target  # neutral: the first accepted step is not pushed
         self._inverse_sum = self._elapsed = 0.0
 
     @property
