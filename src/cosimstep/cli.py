@@ -145,15 +145,20 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
                      f"{', '.join(unable)} cannot save and restore its state",
                      "use a fixed step (--controller fixed --step H) with the gauss-seidel or "
                      "jacobi master")], spec.source))
+    _check_estimate(estimate, ctrl, spec)
+    store = out or f"{spec.name}.db"
+    return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=store,
+                    name=spec.name, config={"source": spec.source, "system": spec.raw},
+                    progress=None, estimate=estimate)
+
+
+def _check_estimate(estimate: str, ctrl: Any, spec: SystemSpec) -> None:
+    """``--estimate rerun`` needs a tolerance to multiply (exit 2 otherwise)."""
     if estimate == "rerun" and getattr(ctrl, "policy", None) is None:
         _config_exit(ConfigurationError(
             [Problem("--estimate", f"'rerun' re-runs at 10x the tolerance; controller "
                      f"'{ctrl.name}' has none", "give --tol TOL, or drop --estimate")],
             spec.source))
-    store = out or f"{spec.name}.db"
-    return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=store,
-                    name=spec.name, config={"source": spec.source, "system": spec.raw},
-                    progress=None, estimate=estimate)
 
 
 def _report(result: SimulationResult, as_json: bool) -> None:

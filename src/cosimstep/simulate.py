@@ -487,10 +487,10 @@ def simulate(
         if policy is None:
             raise ValueError(f"estimate='rerun' needs an error-controlled controller; "
                              f"'{controller.name}' has no tolerance")
-        looser = _simulate(system, until, _loosened(controller), master, t0=t0)
-    return _simulate(system, until, controller, master, t0=t0, reference=reference, store=store,
-                     name=name, config=config, progress=progress,
-                     raise_on_failure=raise_on_failure, looser=looser)
+        looser = _simulate(system, until, _loosened(controller), master, t0, None, None, name,
+                           None, False, False, None)
+    return _simulate(system, until, controller, master, t0, reference, store, name, config,
+                     progress, raise_on_failure, looser)
 
 
 def _loosened(controller: Controller) -> Controller:
@@ -507,21 +507,11 @@ def _loosened(controller: Controller) -> Controller:
     return twin
 
 
-def _simulate(
-    system: System,
-    until: float,
-    controller: Controller,
-    master: MasterOptions | None = None,
-    *,
-    t0: float = 0.0,
-    reference: Reference | None = None,
-    store: str | Path | None = None,
-    name: str = "system",
-    config: dict[str, Any] | None = None,
-    progress: bool | None = False,
-    raise_on_failure: bool = False,
-    looser: SimulationResult | None = None,
-) -> SimulationResult:
+def _simulate(system: System, until: float, controller: Controller,
+              master: MasterOptions | None, t0: float, reference: Reference | None,
+              store: str | Path | None, name: str, config: dict[str, Any] | None,
+              progress: bool | None, raise_on_failure: bool,
+              looser: SimulationResult | None) -> SimulationResult:
     """:func:`simulate` once; ``looser`` is the run at 10× the tolerance for ``"rerun"``."""
     if not (math.isfinite(until) and until > t0):
         raise ValueError(f"`until` ({until}) must be finite and after t0 ({t0})")
@@ -709,25 +699,7 @@ def _simulate_multirate(compiled: Any, until: float, controller: Controller,
     if reference is not None and started and t_end > t0:
         reference.solve(t0, float(max(tr.t for tr in tracks)))
         names = [n for n in compiled.output_names if n in reference.mapping]
-        diffs, scaled, per = [], [], {}
-        for tr in tracks:
-            sl = compiled.output_slices[tr.index]
-            own = [n for n in compiled.output_names[sl] if n in reference.mapping]
-            if not own:
-                continue
-            cols = [compiled.output_names[sl].index(n) for n in own]
-            t_own = np.asarray(tr.times)
-            ref_own = reference.values(t_own, own)
-            d = np.abs(np.array(tr.rows)[:, cols] - ref_own)
-            diffs.append(d.ravel())
-            scaled.append((d / (1.0 + np.abs(ref_own))).ravel())
-            per.update({n: float(d[:, c].max()) for c, n in enumerate(own)})
-        all_d = np.concatenate(diffs) if diffs else np.zeros(0)
-        err = ErrorReport(float(all_d.max()) if all_d.size else 0.0,
-                          float(np.sqrt(np.mean(all_d**2))) if all_d.size else 0.0,
-                          {n: per[n] for n in names if n in per},
-                          int(sum(len(tr.times) for tr in tracks)),
-                          float(np.concatenate(scaled).max()) if all_d.size else 0.0)
+        err = _own_point_error(compiled, tracks, reference, names)
         ref_values = reference.values(grid, names)
     if sink is not None:
         for i, (t, y) in enumerate(zip(grid, values)):
@@ -755,6 +727,29 @@ def _simulate_multirate(compiled: Any, until: float, controller: Controller,
         models=models, error_estimate=race.error_estimate())
     _rerun_estimate(result, looser, controller, events)
     return _finish(result, sink, failure, raise_on_failure)
+
+
+def _own_point_error(compiled: Any, tracks: list, reference: Reference,
+                     names: list[str]) -> ErrorReport:
+    """The error against the reference at each sub-model's own points (no interpolation)."""
+    diffs, scaled, per = [], [], {}
+    for tr in tracks:
+        sl = compiled.output_slices[tr.index]
+        own = [n for n in compiled.output_names[sl] if n in reference.mapping]
+        if not own:
+            continue
+        cols = [compiled.output_names[sl].index(n) for n in own]
+        ref_own = reference.values(np.asarray(tr.times), own)
+        d = np.abs(np.array(tr.rows)[:, cols] - ref_own)
+        diffs.append(d.ravel())
+        scaled.append((d / (1.0 + np.abs(ref_own))).ravel())
+        per.update({n: float(d[:, c].max()) for c, n in enumerate(own)})
+    all_d = np.concatenate(diffs) if diffs else np.zeros(0)
+    return ErrorReport(float(all_d.max()) if all_d.size else 0.0,
+                       float(np.sqrt(np.mean(all_d**2))) if all_d.size else 0.0,
+                       {n: per[n] for n in names if n in per},
+                       int(sum(len(tr.times) for tr in tracks)),
+                       float(np.concatenate(scaled).max()) if all_d.size else 0.0)
 
 
 def _progress(progress: bool | None, t0: float, until: float) -> Any:
