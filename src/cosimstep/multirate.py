@@ -53,7 +53,10 @@ cubic-against-quartic difference at the newest interval overstates what a consum
 (consumers mostly read through centred stencils, and local errors of oscillating systems partly
 cancel). At tol 1e-4, 0.3 put the mixed pendulums, problem 6 and problem 9 at 0.03–4.4 × tol;
 0.1 left the λ = 10 / 30 pendulums at 25× / 39×, 1.0 cost 30 % more calls for 2–3× less error."""
-MAX_RESYNC = 3  # rollback rounds per pending step (guard against endless re-synchronization)
+MAX_RESYNC = 3
+"""Rollback rounds per chain of corrections (guard against endless re-synchronization): a
+sub-model rolled back by a correction of round ``r`` re-runs its steps as round ``r + 1``
+until it is past the time it was rolled back from (:attr:`Track.resync`)."""
 MAX_PIECES = 64  # a pending step is re-run as at most this many steps
 FAILED_TRIAL_SHRINK = 0.25  # step factor after a trial step the sub-model failed on
 ALIAS = 0.3  # relative slope mismatch beyond which a grey-box step counts as unresolved
@@ -92,8 +95,10 @@ class Track:
     failed_trials: int = 0  # rejections because the sub-model failed on the trial step
     rollbacks: int = 0  # times it was rolled back to re-run with a partner's corrected values
     missed_rollbacks: int = 0  # rollbacks wanted with no saved state to go back to
+    replaced: int = 0  # accepted steps later dropped (rollback) or re-run in more pieces, net
     states: dict[int, Any] = field(default_factory=dict)  # saved state at times[i], by i
     version: int = 0  # bumped by a rollback (stale queue entries are skipped)
+    resync: tuple[int, float] = (0, -math.inf)  # (round, until): see MAX_RESYNC
     spent_out: float = 0.0  # Σ estimated errors its interpolated trajectory caused in consumers
     spent_in: float = 0.0  # Σ estimated errors from inputs its steps did not resolve
     steps: list[float] = field(default_factory=list)
@@ -363,14 +368,14 @@ class Multirate:
         if rounds >= MAX_RESYNC:
             return False
         moved = float(np.max(change / tr.policy.scale(tr.rows[-1])))
-        if not self._resynchronize(k, t0, moved):
+        if not self._resynchronize(k, t0, moved, rounds + 1):
             return False
         # the correction read the partners' trajectories that were just discarded: check it
         # again against the ones they will compute now
         tr.pending = (token, t0, h, actual, rounds + 1, first)
         return True
 
-    def _resynchronize(self, k: int, t0: float, moved: float) -> bool:
+    def _resynchronize(self, k: int, t0: float, moved: float, rounds: int) -> bool:
         """Roll back the consumers of ``k`` that read its provisional trajectory after ``t0``
         where the correction moved it too much for their tolerance (thesis 4.3.5: partial
         re-synchronization by rollback).
@@ -392,7 +397,7 @@ class Multirate:
             ratio, _ = other.policy.ratio(gain * overlap * 0.5 * moved * other.policy.scale(y),
                                           y, overlap)
             if ratio > 1.0:
-                rolled |= self._rollback(c, t0, k)
+                rolled |= self._rollback(c, t0, k, rounds)
         return rolled
 
     def _segment_start(self, tr: Track) -> int:
@@ -405,7 +410,7 @@ class Multirate:
         event = self.events[i - 1]
         return bisect.bisect_left(tr.times, event - 1e-9 * max(1.0, abs(event)))
 
-    def _rollback(self, k: int, t0: float, origin: int) -> bool:
+    def _rollback(self, k: int, t0: float, origin: int, rounds: int) -> bool:
         """Restore ``k`` to its last saved point at or before ``t0`` and drop what came after
         (those steps count as re-runs: ``corrections``). Consumers of ``k`` that ran past that
         point are rolled back with it, except ``origin``, whose corrected step caused this (it
@@ -419,6 +424,7 @@ class Multirate:
             tr.missed_rollbacks += 1
             return False
         i = max(candidates)
+        tr.resync = (max(rounds, tr.resync[0]), max(tr.t, tr.resync[1]))
         self._guard(k, tr.times[i], self.system.models[k].restore_state, tr.states[i])
         dropped = len(tr.times) - 1 - i
         del tr.times[i + 1:], tr.rows[i + 1:], tr.steps[i:]
@@ -428,13 +434,14 @@ class Multirate:
         tr.segment = self._segment_start(tr)
         tr.accepted -= dropped
         tr.corrections += dropped
+        tr.replaced += dropped
         tr.rollbacks += 1
         tr.pending = None
         tr.version += 1
         self._requeue.append(k)
         for c in self.consumers[k]:
             if c not in (k, origin) and self.tracks[c].t > tr.t:
-                self._rollback(c, tr.t, origin)
+                self._rollback(c, tr.t, origin, rounds)
         return True
 
     def _pieces(self, tr: Track, t0: float, h: float, actual: np.ndarray,
@@ -496,7 +503,9 @@ class Multirate:
                 tr.slopes.append(slope)
             step_try = min(2.0 * step, h / pieces)
         tr.accepted += made - dropped
-        tr.h = min(tr.h, h / pieces)
+        tr.replaced += dropped - made
+        if pieces > 1:  # the step did not resolve its inputs: do not try it again at once
+            tr.h = min(tr.h, h / pieces)
         tr.segment = self._segment_start(tr)
 
     # -- one step of the sub-model farthest behind -----------------------------------------------
@@ -540,7 +549,8 @@ class Multirate:
         tr.steps.append(h)
         if self.on_attempt is not None:
             self.on_attempt(tr.name, t, h, True)
-        tr.pending = (token, t, h, inputs, 0, len(tr.times) - 1) if extrapolated else None
+        rounds = tr.resync[0] if t < tr.resync[1] else 0  # re-running a rolled-back stretch
+        tr.pending = (token, t, h, inputs, rounds, len(tr.times) - 1) if extrapolated else None
         tr.states[len(tr.times) - 1] = token
         tr.times.append(landing if lands else t + h)
         tr.rows.append(y)

@@ -45,6 +45,9 @@ class ModelStats:
     common grid)."""
     values: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     """Its outputs there, as it computed them (one column per output, in declaration order)."""
+    replaced: int = 0
+    """Multi-rate: accepted steps later dropped by a rollback or re-run in several pieces, net
+    (the attempts log holds ``accepted + replaced`` accepted attempts)."""
 
     def to_dict(self) -> dict[str, Any]:
         s = self.step_sizes
@@ -713,7 +716,7 @@ def _simulate_multirate(compiled: Any, until: float, controller: Controller,
                                 np.array(tr.rows).reshape(len(tr.times), -1))
     models = {tr.name: ModelStats(tr.calls, tr.accepted, tr.rejected, tr.corrections,
                                   np.array(tr.steps), np.asarray(tr.times),
-                                  np.array(tr.rows).reshape(len(tr.times), -1))
+                                  np.array(tr.rows).reshape(len(tr.times), -1), tr.replaced)
               for tr in tracks}
     all_steps = np.concatenate([np.array(tr.steps) for tr in tracks]) if tracks else np.zeros(0)
     result = SimulationResult(

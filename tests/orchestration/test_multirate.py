@@ -164,7 +164,8 @@ def test_store_and_plot_keep_each_submodels_steps(mixed, tmp_path) -> None:
     for name, stats in result.models.items():
         mine = [i for i, m in enumerate(stored.attempt_models) if m == name]
         accepted = stored.attempts[mine, 2] > 0
-        assert accepted.sum() == stats.accepted and (~accepted).sum() == stats.rejected
+        assert accepted.sum() == stats.accepted + stats.replaced
+        assert (~accepted).sum() == stats.rejected
     assert np.allclose(stored.values, result.values)
     assert plot_run(stored, tmp_path / "mr.png").stat().st_size > 10_000
 
