@@ -129,12 +129,15 @@ class StepPolicy:
         to the pendulums.
     distribute:
         With ``global_error``: share the budget so the calls are spent where they reduce the
-        global error most. Minimising ``∫ c·h^(k) dt`` for a given number of steps gives
-        ``h ∝ c^(-1/(k+2))`` rather than the ``c^(-1/k)`` of an equal error per unit step, i.e. a
-        step may spend ``tol/T · 1/(h²·M)`` per unit time, with ``M`` the running time-average of
-        ``1/h²``. Off by default: it assumes every local error is carried to the end, so a short
-        stretch of tiny steps (an initial boundary layer) made ``M`` — and the share of every
-        later step — 1000× smaller than needed (measured: delivered error 4e-4 × tol).
+        global error most. For a fixed number of steps, the sum of local errors ``c·h^(k+1)``
+        is smallest when every step makes the same error, so a step may spend
+        ``cancellation × tol / N`` with ``N`` the steps taken plus those left at the current
+        length: per unit time where the steps are short (a boundary layer is paid for by its own
+        length, not by every later step), per step once the run has a history. An earlier form
+        (the share scaled by the running time-average of ``1/h²``) let 100 steps of 1e-6 s in
+        a boundary layer shrink every later step's share 1000× (delivered 7e-4 × tol).
+        Off by default for the synchronous controllers: it assumes every local error is carried
+        to the end, as the plain sum does, and measured no better there (docs/concepts.md).
     """
 
     tol: float = 1e-4
@@ -161,18 +164,18 @@ class StepPolicy:
             raise ValueError("need 0 < shrink < 1 < grow, 0 < safety <= 1, 0 < target < 1")
         self._span = 1.0
         self._previous = self.target
-        self._inverse_sum = 0.0  # Σ 1/h over accepted steps
+        self._count = 0  # accepted steps
         self._elapsed = 0.0
 
     def start(self, t0: float, t_end: float) -> None:
         self._span = t_end - t0
         self._previous = self.target  # neutral: the first accepted step is not pushed
-        self._inverse_sum = self._elapsed = 0.0
+        self._count, self._elapsed = 0, 0.0
 
     @property
     def extra_power(self) -> int:
         """How many more powers of ``h`` the ratio carries with ``distribute``."""
-        return 2 if (self.global_error and self.distribute) else 0
+        return 1 if (self.global_error and self.distribute) else 0
 
     def scale(self, y: np.ndarray) -> np.ndarray:
         atol = self.tol if self.atol is None else self.atol
@@ -185,8 +188,9 @@ class StepPolicy:
         if self.global_error:
             allowed = allowed * (self.cancellation * h / self._span)
             if self.distribute:
-                mean_inverse_square = (self._inverse_sum + 1.0 / h) / (self._elapsed + h)
-                allowed = allowed / (h * h * mean_inverse_square)
+                # an equal share per step: the steps taken plus those left at this length
+                steps = self._count + max(self._span - self._elapsed, h) / h
+                allowed = allowed * self._span / (h * steps)
         r = np.abs(error) / allowed
         i = int(np.argmax(r)) if r.size else 0
         return (float(r[i]) if r.size else 0.0), i
@@ -205,7 +209,7 @@ class StepPolicy:
             factor = self.safety * r ** (-1.0 / k)
         if accepted:
             self._previous = r
-            self._inverse_sum += 1.0 / h
+            self._count += 1
             self._elapsed += h
         else:
             factor = min(factor, 1.0)
