@@ -3,7 +3,7 @@
 An ``.ssp`` file is a zip archive holding ``SystemStructure.ssd`` and, usually, the FMUs under
 ``resources/``. :func:`load_ssp` checks every member name before anything is unpacked (absolute
 names, ``..`` and symbolic links are refused), unpacks into a temporary folder that is removed
-with the system, reads the SSD and returns the same :class:`~cosimstep.config.SystemSpec` as a
+with the system, reads the SSD and returns the same :class:`~cosimstep.spec.SystemSpec` as a
 TOML system file, so every master and controller runs it.
 
 What is read from the SSD:
@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from cosimstep.errors import ConfigurationError, Problem
+from cosimstep.spec import Origin, SystemSpec, finish, parse_header
 from cosimstep.system import System
 from cosimstep.units import UnitError, conversion
 
@@ -225,20 +226,8 @@ def _compose(*maps: Affine) -> Affine:
     return a, b
 
 
-def read_ssd(folder: Path, where: str, problems: list[Problem]) -> dict[str, Any] | None:
-    """Read ``SystemStructure.ssd`` from an unpacked SSP into plain data (no FMU is touched)."""
-    root = _parse_xml(folder / SSD_NAME, where, problems)
-    if root is None:
-        return None
-    if root.tag != _tag(SSD, "SystemStructureDescription"):
-        problems.append(Problem(where, f"root element is {root.tag}, not "
-                                "ssd:SystemStructureDescription",
-                                f"use the SSP 1.0 namespace {SSD}"))
-        return None
-    system = root.find("ssd:System", NS)
-    if system is None:
-        problems.append(Problem(where, "no ssd:System element", "add the system"))
-        return None
+def _read_components(system: ET.Element, where: str,
+                     problems: list[Problem]) -> dict[str, Component]:
     components: dict[str, Component] = {}
     elements = system.find("ssd:Elements", NS)
     for elem in list(elements) if elements is not None else []:
@@ -262,6 +251,10 @@ def read_ssd(folder: Path, where: str, problems: list[Problem]) -> dict[str, Any
         components[name] = Component(name, elem.get("source", ""), elem.get("type"), connectors,
                                      elem.findall("ssd:ParameterBindings/ssd:ParameterBinding",
                                                   NS))
+    return components
+
+
+def _read_links(system: ET.Element, where: str, problems: list[Problem]) -> list[Link]:
     links = []
     for i, c in enumerate(system.findall("ssd:Connections/ssd:Connection", NS)):
         loc = f"{where}: Connections[{i}]"
@@ -278,6 +271,25 @@ def read_ssd(folder: Path, where: str, problems: list[Problem]) -> dict[str, Any
                 problems.append(Problem(f"{loc} ({link.label})", f"ssc:{other} is not "
                                         "supported", "connect Real connectors only"))
         links.append(link)
+    return links
+
+
+def read_ssd(folder: Path, where: str, problems: list[Problem]) -> dict[str, Any] | None:
+    """Read ``SystemStructure.ssd`` from an unpacked SSP into plain data (no FMU is touched)."""
+    root = _parse_xml(folder / SSD_NAME, where, problems)
+    if root is None:
+        return None
+    if root.tag != _tag(SSD, "SystemStructureDescription"):
+        problems.append(Problem(where, f"root element is {root.tag}, not "
+                                "ssd:SystemStructureDescription",
+                                f"use the SSP 1.0 namespace {SSD}"))
+        return None
+    system = root.find("ssd:System", NS)
+    if system is None:
+        problems.append(Problem(where, "no ssd:System element", "add the system"))
+        return None
+    components = _read_components(system, where, problems)
+    links = _read_links(system, where, problems)
     experiment = root.find("ssd:DefaultExperiment", NS)
     stop = start = None
     if experiment is not None:
@@ -426,8 +438,8 @@ def _annotation(annotations: list[ET.Element], where: str,
     return {k: v for k, v in raw.items() if k in ANNOTATION_KEYS}
 
 
-def load_ssp(path: str | Path, until: float | None = None) -> Any:
-    """Read an ``.ssp`` archive into a :class:`~cosimstep.config.SystemSpec`.
+def load_ssp(path: str | Path, until: float | None = None) -> SystemSpec:
+    """Read an ``.ssp`` archive into a :class:`~cosimstep.spec.SystemSpec`.
 
     Raises :class:`ConfigurationError` listing every problem. The unpacked archive is removed
     when the returned system is garbage collected (or at exit), and at once on an error.
@@ -450,32 +462,51 @@ def load_ssp(path: str | Path, until: float | None = None) -> Any:
 
 
 def _load_unpacked(path: Path, folder: Path, until: float | None,
-                   problems: list[Problem]) -> Any:
-    from cosimstep.config import (
-        ControllerSection,
-        HeaderSection,
-        MasterSection,
-        ReferenceSection,
-        SystemSpec,
-        _build_reference,
-        _parse,
-    )
-    from cosimstep.fmu.resolve import fmu_submodel
-    from cosimstep.masters import MasterOptions
-
+                   problems: list[Problem]) -> SystemSpec:
     src = str(path)
     where = f"{src}: {SSD_NAME}"
     ssd = read_ssd(folder, where, problems)
     if ssd is None:
         raise ConfigurationError(problems, src)
     components: dict[str, Component] = ssd["components"]
-    units: dict[str, SspUnit] = ssd["units"]
     if not components:
         problems.append(Problem(f"{where}: Elements", "no components",
                                 "add ssd:Component elements"))
+    system = System()
+    _add_components(system, ssd, folder, where, problems)
+    for i, link in enumerate(ssd["links"]):
+        loc = f"{where}: Connections[{i}] ({link.label})"
+        gain_offset = _link_gain(link, components, system, ssd["units"], loc, problems)
+        if gain_offset is not None:
+            system.connect(".".join(link.start), ".".join(link.end), *gain_offset, where=loc)
+    if not problems:
+        problems.extend(system.problems())
+    aloc = f"{where}: Annotation {ANNOTATION_TYPE}"
+    settings = _annotation(ssd["annotations"], aloc, problems)
+    header = parse_header({k: v for k, v in settings.items()
+                           if k in ("name", "description", "until", "parameters", "start")},
+                          aloc, problems)
+    # a reference maps system outputs: not worth checking against a system already refused
+    broken = any(p.where.startswith((f"{where}: Connections", f"{where}: component"))
+                 for p in problems)
+    raw = {"format": "ssp", "ssd": ssd["name"],
+           "components": {n: c.source for n, c in components.items()},
+           "connections": [{"from": ".".join(c.start), "to": ".".join(c.end),
+                            "factor": c.factor, "offset": c.offset} for c in ssd["links"]],
+           "cosimstep": settings}
+    origin = Origin(src, lambda key: f"{aloc}.{key}", ssd["name"] or path.stem, until,
+                    ssd["stop"])
+    return finish(settings, header, system, origin, problems, raw, reference=not broken)
 
-    # Parameter values: system-level bindings name "component.variable", component-level ones
-    # the component's own variables; a component's own binding wins.
+
+def _add_components(system: System, ssd: dict[str, Any], folder: Path, where: str,
+                    problems: list[Problem]) -> None:
+    """One FMU sub-model per component, with its parameter bindings: system-level bindings
+    name "component.variable", component-level ones the component's own variables; a
+    component's own binding wins."""
+    from cosimstep.fmu.resolve import fmu_submodel
+
+    components: dict[str, Component] = ssd["components"]
     system_values: dict[str, dict[str, tuple[float, str | None]]] = {}
     for i, b in enumerate(ssd["bindings"]):
         bloc = f"{where}: System ParameterBindings[{i}]"
@@ -487,8 +518,6 @@ def _load_unpacked(path: Path, folder: Path, until: float | None,
                                         f"{', '.join(components) or 'none'}"))
                 continue
             system_values.setdefault(comp, {})[var] = value
-
-    system = System()
     for name, comp in components.items():
         loc = f"{where}: component {name}"
         fmu = _fmu_source(comp, folder, loc, problems)
@@ -501,58 +530,12 @@ def _load_unpacked(path: Path, folder: Path, until: float | None,
         values = _in_fmu_units(values, fmu, loc, problems)
         model = fmu_submodel(name, fmu, {f"start.{k}": v for k, (v, _) in values.items()},
                              f"{loc} parameter", problems)
-        if model is None:
+        if model is None or not _check_connectors(comp, model, loc, problems):
             continue
-        if _check_connectors(comp, model, loc, problems):
-            try:
-                system.add(name, model, where=loc)
-            except ValueError as exc:
-                problems.append(Problem(loc, str(exc), "rename the component"))
-
-    for i, link in enumerate(ssd["links"]):
-        loc = f"{where}: Connections[{i}] ({link.label})"
-        gain_offset = _link_gain(link, components, system, units, loc, problems)
-        if gain_offset is not None:
-            system.connect(".".join(link.start), ".".join(link.end), *gain_offset, where=loc)
-    if not problems:
-        problems.extend(system.problems())
-
-    settings = _annotation(ssd["annotations"], f"{where}: Annotation {ANNOTATION_TYPE}", problems)
-    aloc = f"{where}: Annotation {ANNOTATION_TYPE}"
-    header_raw = {k: v for k, v in settings.items()
-                  if k in ("name", "description", "until", "parameters", "start")}
-    header = _parse(HeaderSection, header_raw, aloc, problems) or HeaderSection()
-    master_sec = _parse(MasterSection, settings.get("master", {}), f"{aloc}.master", problems)
-    controller_sec = _parse(ControllerSection, settings.get("controller", {}),
-                            f"{aloc}.controller", problems)
-    master = MasterOptions()
-    if master_sec is not None:
-        master = MasterOptions(master_sec.name, master_sec.extrapolation,
-                               tuple(master_sec.order) if master_sec.order else None,
-                               master_sec.call_timeout, master_sec.interpolation)
-        problems.extend(Problem(f"{aloc}.master", p) for p in master.problems())
-    reference = None
-    if "reference" in settings:
-        sec = _parse(ReferenceSection, settings["reference"], f"{aloc}.reference", problems)
-        if sec is not None and not any(p.where.startswith(f"{where}: Connections")
-                                       or p.where.startswith(f"{where}: component")
-                                       for p in problems):
-            reference = _build_reference(sec, header, [], system, f"{aloc}.reference",
-                                         problems, set())
-    if problems:
-        raise ConfigurationError(problems, src)
-    end = until if until is not None else (
-        ssd["stop"] if ssd["stop"] is not None else header.until)
-    raw = {"format": "ssp", "ssd": ssd["name"],
-           "components": {n: c.source for n, c in components.items()},
-           "connections": [{"from": ".".join(c.start), "to": ".".join(c.end),
-                            "factor": c.factor, "offset": c.offset} for c in ssd["links"]],
-           "cosimstep": settings}
-    return SystemSpec(
-        name=header.name or ssd["name"] or path.stem, source=src, system=system, until=end,
-        master=master,
-        controller=controller_sec.model_dump(exclude_none=True) if controller_sec else {},
-        reference=reference, raw=raw)
+        try:
+            system.add(name, model, where=loc)
+        except ValueError as exc:
+            problems.append(Problem(loc, str(exc), "rename the component"))
 
 
 def _in_fmu_units(values: dict[str, tuple[float, str | None]], fmu: Path, where: str,

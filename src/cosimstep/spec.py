@@ -1,0 +1,203 @@
+"""What a system file becomes, whatever its format: a :class:`SystemSpec`.
+
+TOML files (:mod:`cosimstep.config`) and SSP archives (:mod:`cosimstep.ssp`) build their
+:class:`~cosimstep.system.System` in their own ways, but share everything else: the header
+(name, horizon, shared parameters and start values), the run defaults ``[master]`` and
+``[controller]``, the ``[reference]`` naming a monolithic model, and the rule that every problem
+is collected before one :class:`~cosimstep.errors.ConfigurationError` lists them all. Both
+formats call :func:`parse_header` first (models read the shared values) and :func:`finish`
+last; neither imports the other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from cosimstep.adapters.ode import ParameterSchedule
+from cosimstep.errors import ConfigurationError, Problem
+from cosimstep.masters import MasterOptions
+from cosimstep.models import REGISTRY
+from cosimstep.reference import Reference
+from cosimstep.system import System
+
+Changes = list[tuple[float, dict[str, float]]]
+"""Parameter changes: ``(time, {parameter: value})``."""
+
+
+class Section(BaseModel):
+    """A strict table: unknown keys, NaN and infinities are problems."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
+
+
+class MasterSection(Section):
+    name: str = "gauss-seidel"
+    extrapolation: int = 2
+    order: list[str] | None = None
+    call_timeout: float | None = None
+    interpolation: str | None = None
+
+
+class ControllerSection(BaseModel):
+    model_config = ConfigDict(extra="allow")  # controller options are checked when it is built
+    name: str | None = None
+    step: float | None = None
+    tol: float | None = None
+
+
+class ReferenceSection(Section):
+    type: str
+    map: dict[str, str]
+
+
+class HeaderSection(BaseModel):
+    model_config = ConfigDict(extra="ignore", allow_inf_nan=False)
+    name: str | None = None
+    description: str = ""
+    until: float = Field(10.0, gt=0)
+    parameters: dict[str, float] = {}
+    start: dict[str, float] = {}
+    solver: dict[str, Any] = {"method": "rk4", "max_dt": 1e-3}
+
+
+@dataclass
+class SystemSpec:
+    """A loaded system file: the system, its reference and its run defaults."""
+
+    name: str
+    source: str
+    system: System
+    until: float
+    master: MasterOptions
+    controller: dict[str, Any]
+    reference: Reference | None
+    raw: dict[str, Any] = field(default_factory=dict)
+
+
+def parse(cls: type[BaseModel], body: Any, where: str, problems: list[Problem]) -> Any:
+    """``cls`` validated from ``body``, or ``None`` with the reasons added to ``problems``."""
+    if not isinstance(body, dict):
+        problems.append(Problem(where, "must be a table", "write it as [section] or {...}"))
+        return None
+    try:
+        return cls.model_validate(body)
+    except ValidationError as exc:
+        for e in exc.errors():
+            key = ".".join(str(p) for p in e["loc"])
+            problems.append(Problem(f"{where}.{key}" if key else where, e["msg"],
+                                    "check the spelling and type of this key"))
+        return None
+
+
+def parse_header(settings: Mapping[str, Any], where: str,
+                 problems: list[Problem]) -> HeaderSection:
+    """The header keys of ``settings`` (defaults where they did not parse)."""
+    return parse(HeaderSection, dict(settings), where, problems) or HeaderSection()
+
+
+def build_reference(sec: ReferenceSection, header: HeaderSection, changes: Changes,
+                    system: System, where: str, problems: list[Problem],
+                    used: set[str]) -> Reference | None:
+    """The monolithic reference a ``[reference]`` table names, reading the shared values."""
+    kind = REGISTRY.get(sec.type)
+    if kind is None:
+        problems.append(Problem(f"{where}.type", f"unknown reference model '{sec.type}'",
+                                f"use one of: {', '.join(sorted(REGISTRY))}"))
+        return None
+    shared = {k: v for k, v in header.parameters.items() if k in kind.parameters}
+    used.update(shared)
+    own_changes = [(t, {k: v for k, v in vals.items() if k in kind.parameters})
+                   for t, vals in changes]
+    model = kind.build(ParameterSchedule({**kind.parameters, **shared}, own_changes),
+                       header.start, None)
+    outputs = {f"{n}.{p.name}" for n, m in system.models.items() for p in m.outputs}
+    states = {p.name for p in model.outputs}
+    for k, v in sec.map.items():
+        if k not in outputs:
+            problems.append(Problem(f"{where}.map.{k}", "not an output of the system",
+                                    "keys are model.output addresses"))
+        if v not in states:
+            problems.append(Problem(f"{where}.map.{k}", f"'{v}' is not a state of '{sec.type}'",
+                                    f"its states: {', '.join(sorted(states))}"))
+    return Reference(model, dict(sec.map))
+
+
+def _master(body: Any, system: System, where: str, problems: list[Problem]) -> MasterOptions:
+    sec = parse(MasterSection, body, where, problems)
+    if sec is None:
+        return MasterOptions()
+    master = MasterOptions(sec.name, sec.extrapolation,
+                           tuple(sec.order) if sec.order else None, sec.call_timeout,
+                           sec.interpolation)
+    problems.extend(Problem(where, p) for p in master.problems())
+    for m in sec.order or []:
+        if m not in system.models:
+            problems.append(Problem(f"{where}.order", f"unknown model '{m}'",
+                                    f"use names from: {', '.join(system.models)}"))
+    return master
+
+
+def _unused(header: HeaderSection, changes: Changes, used: set[str], loc: Callable[[str], str],
+            problems: list[Problem]) -> None:
+    for key in header.parameters:
+        if key not in used:
+            problems.append(Problem(loc(f"parameters.{key}"), "no model uses this parameter",
+                                    "check the spelling or remove it"))
+    for i, (_, values) in enumerate(changes):
+        for key in values:
+            if key not in used:
+                problems.append(Problem(loc(f"parameter_changes[{i}].set.{key}"),
+                                        "no model uses this parameter", "check the spelling"))
+
+
+@dataclass
+class Origin:
+    """Where a spec came from, for its messages and its summary."""
+
+    source: str  # the file, as the user named it
+    loc: Callable[[str], str]  # a settings key -> where to report it
+    name: str  # the name when the header gives none
+    until: float | None  # the horizon the caller asked for (overrides the file)
+    default_until: float | None = None  # the format's own horizon (SSP: DefaultExperiment)
+
+
+def finish(settings: Mapping[str, Any], header: HeaderSection, system: System, origin: Origin,
+           problems: list[Problem], raw: dict[str, Any], *, changes: Changes | None = None,
+           used: set[str] | None = None, reference: bool = True) -> SystemSpec:
+    """Read the run defaults and the reference of ``settings``, then the spec — or raise
+    :class:`ConfigurationError` with every problem collected so far and here.
+
+    ``used`` (the shared parameters some model read): with it, a shared parameter or a change
+    nothing reads is a problem (a misspelling would otherwise change nothing, silently).
+    ``reference=False`` skips building the reference (its model names would only repeat
+    problems already listed for the system).
+    """
+    changes = changes if changes is not None else []
+    loc = origin.loc
+    master = _master(settings.get("master", {}), system, loc("master"), problems)
+    controller = parse(ControllerSection, settings.get("controller", {}), loc("controller"),
+                       problems)
+    ref = None
+    if "reference" in settings:
+        sec = parse(ReferenceSection, settings["reference"], loc("reference"), problems)
+        if sec is not None and reference:
+            ref = build_reference(sec, header, changes, system, loc("reference"), problems,
+                                  used if used is not None else set())
+    if used is not None:
+        _unused(header, changes, used, loc, problems)
+    if problems:
+        raise ConfigurationError(problems, origin.source)
+    until = origin.until if origin.until is not None else (
+        origin.default_until if origin.default_until is not None else header.until)
+    return SystemSpec(
+        name=header.name or origin.name, source=origin.source, system=system, until=until,
+        master=master, controller=controller.model_dump(exclude_none=True) if controller else {},
+        reference=ref, raw=raw)
+
+
+__all__ = ["ControllerSection", "HeaderSection", "MasterSection", "Origin", "ReferenceSection",
+           "Section", "SystemSpec", "build_reference", "finish", "parse", "parse_header"]
