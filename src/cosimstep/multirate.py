@@ -29,7 +29,6 @@ can see.
 from __future__ import annotations
 
 import bisect
-import heapq
 import math
 import time
 from dataclasses import dataclass, field
@@ -40,6 +39,7 @@ import numpy as np
 from cosimstep.controllers.base import StepPolicy
 from cosimstep.errors import SubModelError
 from cosimstep.extrapolation import evaluate, taylor_coefficients
+from cosimstep.kernel import Actor, Kernel
 from cosimstep.masters import Master, MasterOptions
 from cosimstep.system import CompiledSystem
 
@@ -97,7 +97,6 @@ class Track:
     missed_rollbacks: int = 0  # rollbacks wanted with no saved state to go back to
     replaced: int = 0  # accepted steps later dropped (rollback) or re-run in more pieces, net
     states: dict[int, Any] = field(default_factory=dict)  # saved state at times[i], by i
-    version: int = 0  # bumped by a rollback (stale queue entries are skipped)
     resync: tuple[int, float] = (0, -math.inf)  # (round, until): see MAX_RESYNC
     spent_out: float = 0.0  # Σ estimated errors its interpolated trajectory caused in consumers
     spent_in: float = 0.0  # Σ estimated errors from inputs its steps did not resolve
@@ -166,8 +165,11 @@ class Multirate:
                        for k, n in enumerate(system.names)]
         self.events: list[float] = []
         self.until = math.inf
-        self._requeue: list[int] = []  # sub-models rolled back since the queue last saw them
+        self._requeue: list[int] = []  # sub-models rolled back since the kernel last saw them
         self.on_attempt: Any = None  # on_attempt(name, t, h, accepted): for the results store
+        self._kernel = Kernel(math.inf)  # replaced by actors()
+        self._on_step: Any = None
+        self._steppers: list[_Stepper] = []
 
     # -- partners' trajectories ----------------------------------------------------------------
     def _segment_bounds(self, t: float) -> tuple[float, float]:
@@ -437,7 +439,6 @@ class Multirate:
         tr.replaced += dropped
         tr.rollbacks += 1
         tr.pending = None
-        tr.version += 1
         self._requeue.append(k)
         for c in self.consumers[k]:
             if c not in (k, origin) and self.tracks[c].t > tr.t:
@@ -637,49 +638,32 @@ class Multirate:
             tr.slopes = [slope] if slope is not None else []
             tr.policy.start(t0, until)
 
-    def run(self, until: float, on_step: Any = None) -> None:
-        """The race of appendix C: whoever is farthest behind steps until everyone is at ``until``.
+    def actors(self, kernel: Kernel, on_step: Any = None) -> list[Actor]:
+        """One actor per sub-model for the run kernel (the race of appendix C: whoever is
+        farthest behind steps next); ``on_step(track)`` after every accepted step."""
+        self._kernel, self._on_step = kernel, on_step
+        self._steppers = [_Stepper(self, k) for k in range(len(self.tracks))]
+        return list(self._steppers)
 
-        ``on_step(track)`` is called after every accepted step (progress, storage).
-        """
-        queue = [(tr.t, tr.index, tr.version) for tr in self.tracks]
-        heapq.heapify(queue)
-        while True:
-            self._race(queue, until, on_step)
-            for k in range(len(self.tracks)):  # the last steps: partners are all at ``until``
-                self.verify(k)
-            if not self._requeue:
-                break
-            self._requeue_into(queue)
+    def settle(self) -> list[Actor]:
+        """When every sub-model is at the end: verify the last steps (the partners are all at
+        ``until`` now) and name the sub-models that rolled back to run again."""
+        for k in range(len(self.tracks)):
+            self.verify(k)
+        return self._woken()
 
-    def _requeue_into(self, queue: list) -> None:
-        """Put rolled-back sub-models (and whoever waits on them) back into the race."""
-        for k in sorted(set(self._requeue)):
-            tr = self.tracks[k]
-            heapq.heappush(queue, (tr.t, k, tr.version))
+    def _woken(self) -> list[Actor]:
+        """The actors of the sub-models rolled back since the last call."""
+        woken = [self._steppers[k] for k in sorted(set(self._requeue))]
         self._requeue.clear()
+        return woken
 
-    def _race(self, queue: list, until: float, on_step: Any) -> None:
-        while queue:
-            t, k, version = heapq.heappop(queue)
-            tr = self.tracks[k]
-            if version != tr.version:
-                continue  # queued before a rollback moved it back
-            i = bisect.bisect_right(self.events, t + 1e-12 * max(1.0, abs(t)))
-            landing = min(self.events[i], until) if i < len(self.events) else until
-            lands = self.advance(k, landing)
-            if lands and landing < until:
-                tr.segment = len(tr.times) - 1  # a time event: extrapolate from here on only
-            if on_step is not None:
-                on_step(tr)
-            if tr.version != version:
-                continue  # rolled back meanwhile: requeued below with its new time
-            if not (lands and landing >= until):
-                heapq.heappush(queue, (tr.t, k, tr.version))
-            if self._requeue:
-                self._requeue_into(queue)
-            if len(tr.times) % 64 == 0:
-                self._forget_states()
+    def run(self, until: float, on_step: Any = None) -> None:
+        """The whole race on a kernel of its own (:meth:`initialize` first)."""
+        kernel = Kernel(until)
+        for actor in self.actors(kernel, on_step):
+            kernel.add(actor)
+        kernel.run(self.settle)
 
     def _forget_states(self) -> None:
         """Drop saved states no rollback can reach. A rollback goes back to the start of a
@@ -721,6 +705,37 @@ class Multirate:
             for c, j in enumerate(range(sl.start, sl.stop)):
                 out[i, c] = self._trajectory(j, np.array([t]))[0][0]
         return out
+
+
+class _Stepper(Actor):
+    """One sub-model of the race as an actor of the run kernel: a turn is one accepted step,
+    landing on the next time event or the end."""
+
+    def __init__(self, race: Multirate, k: int) -> None:
+        self.race, self.k = race, k
+        self.name, self.rank = race.tracks[k].name, k
+
+    @property
+    def time(self) -> float:
+        return self.race.tracks[self.k].t
+
+    @property
+    def finished(self) -> bool:
+        return self.race.tracks[self.k].t >= self.race.until
+
+    def act(self, limit: float) -> None:
+        race, tr = self.race, self.race.tracks[self.k]
+        t = tr.t
+        i = bisect.bisect_right(race.events, t + 1e-12 * max(1.0, abs(t)))
+        landing = min(race.events[i], limit) if i < len(race.events) else limit
+        if race.advance(self.k, landing) and landing < race.until:
+            tr.segment = len(tr.times) - 1  # a time event: extrapolate from here on only
+        if race._on_step is not None:
+            race._on_step(tr)
+        for actor in race._woken():
+            race._kernel.wake(actor)
+        if len(tr.times) % 64 == 0:
+            race._forget_states()
 
 
 def _copy_policy(policy: StepPolicy) -> StepPolicy:

@@ -1,0 +1,82 @@
+"""The run kernel: a time-ordered heap of actors, in the spirit of SimPy.
+
+Every way of advancing a coupled system in time is expressed as *actors*: something that stands
+at a time and, when it is its turn, acts from there. The kernel always lets the actor that is
+farthest behind act next (thesis appendix C's race), so
+
+- a synchronous co-simulation (one communication step for every sub-model) is one actor;
+- the multi-rate master is one actor per sub-model, each with its own step;
+- a sub-model moved back in time by a rollback is *woken*: queued again at its new time; a
+  newer entry supersedes the older ones still in the heap.
+
+An actor acts "up to a limit": the end of the run. A synchronous actor alone in the heap runs
+its whole loop in one turn (the fixed-step path keeps its speed); discrete-event actors, whose
+next event time may change while the run goes on, will lower that limit to their next event.
+When the heap is empty the kernel asks ``settle`` whether anything is left to redo (the
+multi-rate master's last verification may roll sub-models back) and runs again if so.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterable
+
+
+class Actor(ABC):
+    """Something that advances in time when the kernel gives it its turn."""
+
+    name: str = "actor"
+    rank: int = 0  # among actors at the same time, the lower rank acts first
+
+    @property
+    @abstractmethod
+    def time(self) -> float:
+        """Where it stands: its next action starts here."""
+
+    @property
+    def finished(self) -> bool:
+        """Whether it has nothing more to do (it is not queued again)."""
+        return False
+
+    @abstractmethod
+    def act(self, limit: float) -> None:
+        """Advance from :attr:`time`, not past ``limit``; at least one step unless finished."""
+
+
+class Kernel:
+    """Runs actors until every one is finished (or one of them raises)."""
+
+    def __init__(self, until: float) -> None:
+        self.until = until
+        self._heap: list[tuple[float, int, int, Actor]] = []
+        self._order = itertools.count()  # ties of time and rank: first queued acts first
+        self._latest: dict[int, int] = {}  # id(actor) -> its newest entry (others are stale)
+
+    def add(self, actor: Actor) -> None:
+        """Queue ``actor`` at its time (again, after a rollback moved it back)."""
+        if not actor.finished:
+            ticket = next(self._order)
+            self._latest[id(actor)] = ticket
+            heapq.heappush(self._heap, (actor.time, actor.rank, ticket, actor))
+
+    wake = add
+
+    def run(self, settle: Callable[[], Iterable[Actor]] | None = None) -> None:
+        """Turns until the heap is empty; then ``settle()`` names actors to run again."""
+        while True:
+            while self._heap:
+                _, _, ticket, actor = heapq.heappop(self._heap)
+                if ticket != self._latest.get(id(actor)) or actor.finished:
+                    continue  # superseded (a rollback queued it again), or already done
+                actor.act(self.until)
+                self.add(actor)
+            again = list(settle()) if settle is not None else []
+            if not again:
+                return
+            for actor in again:
+                self.add(actor)
+
+
+__all__ = ["Actor", "Kernel"]

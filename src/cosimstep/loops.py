@@ -1,0 +1,378 @@
+"""The synchronous time loops: every sub-model takes the same communication step.
+
+:class:`ControllerLoop` asks the controller for an attempt at each step, lands steps on the
+sub-models' time events and the end time, and records every attempt and accepted point in the
+store; :class:`FixedLoop` is the same run for a plain fixed step without per-step objects. Both
+are actors of the run kernel (:mod:`cosimstep.kernel`): a synchronous co-simulation is one
+actor, which runs up to the limit the kernel gives it.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from cosimstep.controllers import Controller
+from cosimstep.controllers.base import Attempt
+from cosimstep.errors import SubModelError
+from cosimstep.kernel import Actor
+from cosimstep.masters import Master, _Watchdog
+from cosimstep.store import Store
+
+HISTORY_ROWS = 4  # stored points handed to controllers/masters for extrapolation
+FAILED_TRIAL_SHRINK = 0.25  # step factor after a trial step a sub-model failed on
+
+
+class _Context:
+    """The :class:`~cosimstep.controllers.StepContext` the loop hands to controllers."""
+
+    def __init__(self, master: Master) -> None:
+        self.master = master
+        self.all_times: list[float] = []
+        self.rows: list[np.ndarray] = []
+        self.times: list[float] = []  # the points extrapolation may use (rows of ``history``)
+        self.history = np.empty((0, 0))
+        self.order = master.options.extrapolation
+        self.names = master.system.output_names
+        self.predicted = master.predicted
+        self.consumed = master.consumed
+        self.held = master.held
+        self._segment = 0  # index of the first point after the last time event
+        self.first_token: Any = None  # the first state saved during the current attempt
+
+    def push(self, t: float, y: np.ndarray) -> None:
+        self.all_times.append(t)
+        self.rows.append(y)
+        first = max(self._segment, len(self.rows) - HISTORY_ROWS)
+        self.history = np.array(self.rows[first:])
+        self.times = self.all_times[first:]
+
+    def restart(self) -> None:
+        """A time event at the last point: extrapolate only from points at or after it."""
+        self._segment = len(self.rows) - 1
+        self.history = np.array(self.rows[self._segment:])
+        self.times = self.all_times[self._segment:]
+        self.master.restart()
+
+    def step(self, t: float, h: float, *, order: int | None = None,
+             end: np.ndarray | None = None,
+             extra: tuple[tuple[float, np.ndarray], ...] = ()) -> np.ndarray:
+        times, history = self.times, self.history
+        if extra:
+            times = [*times, *(e[0] for e in extra)]
+            history = np.vstack([history, *(e[1] for e in extra)])[-HISTORY_ROWS:]
+        return self.master.step(t, h, times, history, order=order, end=end)
+
+    def defect(self) -> tuple[np.ndarray, np.ndarray]:
+        y = self.master.last
+        return y - self.master.assumed, self.master.predicted
+
+    def derivatives(self) -> np.ndarray | None:
+        return self.master.derivatives()
+
+    def save(self) -> Any:
+        token = self.master.save()
+        if self.first_token is None:
+            self.first_token = token
+        return token
+
+    def restore(self, token: Any) -> None:
+        self.master.restore(token)
+
+
+class ControllerLoop(Actor):
+    """The time loop for any controller: attempts, rejections, the step context."""
+
+    def __init__(self, runner: Master, controller: Controller, t0: float, until: float,
+                 events: list[float], sink: Store | None, bar: Any) -> None:
+        self.runner, self.controller = runner, controller
+        self.t0, self.until, self.events = t0, until, events
+        self.sink, self.bar = sink, bar
+        self.ctx = _Context(runner)
+        self.t = t0
+        self.steps: list[float] = []
+        self.rejected = 0
+        self.failed_trials = 0  # rejected because a sub-model failed on the trial step
+        self._clock: _Clock | None = None  # set by the first turn
+        self._h = 0.0  # the step the controller proposed last
+        self._hmax = math.inf
+
+    @property
+    def time(self) -> float:
+        return self.t
+
+    @property
+    def finished(self) -> bool:
+        return self.t >= self.until
+
+    def act(self, limit: float) -> None:
+        """Steps until ``limit`` (a step that would pass it lands on it)."""
+        if self._clock is None:
+            self._start()
+        while self.t < limit:
+            event = _next_landing(self.events, self.t, self.until)
+            self._attempt(min(event, limit), event)
+
+    def _start(self) -> None:
+        t = self.t0
+        self._clock = _Clock(t)
+        y0 = self.runner.initialize(t)
+        self.ctx.push(t, y0)
+        if self.sink is not None:
+            self.sink.add_point(0, t, y0)
+        self._h = self.controller.initial_step(t, self.until)
+        self._hmax = self.runner.max_step  # the sub-models' own limit
+
+    def _attempt(self, landing: float, event: float) -> None:
+        """One attempt at the next step; a step that would pass ``landing`` lands on it
+        (``event``: the next time event or the end)."""
+        controller, ctx, sink, t = self.controller, self.ctx, self.sink, self.t
+        h = min(self._h, self._hmax)
+        if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
+            h = landing - t  # land exactly on the event / end time
+        ctx.first_token = None
+        try:
+            attempt = controller.attempt(ctx, t, h)
+        except SubModelError as exc:
+            attempt = self._failed_trial(exc, t, h)
+        if sink is not None:
+            sink.add_attempt(None, t, h, attempt.accepted, attempt.error)
+        self._h = attempt.h_next
+        if not attempt.accepted:
+            self.rejected += 1
+            return
+        clock = self._clock
+        clock.add(h)
+        t = self.t = landing if abs(clock.value - landing) <= 1e-9 * h else clock.value
+        at_event = t == event and t < self.until
+        if at_event:
+            controller.event(t)
+        ctx.push(t, attempt.y)
+        if at_event:
+            ctx.restart()
+        self.steps.append(h)
+        if sink is not None:
+            sink.add_point(len(self.steps), t, attempt.y)
+        if self.bar is not None:
+            self.bar.update(h)
+
+    def _failed_trial(self, exc: SubModelError, t: float, h: float) -> Attempt:
+        """A trial step a sub-model could not take (it raised, or returned NaN or inf) is a
+        rejected step: the sub-models go back to ``t`` and the step is retried at a quarter of
+        its length (the factor SUNDIALS' integrators apply after a failed nonlinear solve).
+
+        An adaptive controller proposes steps the sub-models have never seen; extrapolated
+        inputs over a long step can leave a sub-model's domain (a singularity, a solver that
+        gives up) although the true inputs never do. Only a failure that persists down to the
+        controller's ``hmin``, a call that hung (its thread may still hold the model), or a
+        controller that cannot roll back ends the run.
+        """
+        policy = getattr(self.controller, "policy", None)
+        token = self.ctx.first_token
+        if exc.hung or token is None or policy is None:
+            raise exc
+        h_next = FAILED_TRIAL_SHRINK * h
+        if h_next < policy.hmin:
+            raise SubModelError(exc.model, exc.t, f"{exc.reason} (still after retrying with "
+                                f"steps down to {h:.3g} s; hmin = {policy.hmin:.3g} s)",
+                                exc.h) from exc
+        self.ctx.restore(token)
+        self.failed_trials += 1
+        return Attempt(np.empty(0), False, h_next, math.inf)
+
+    def finish(self) -> None:
+        """Nothing to hand on: every point went to the store as it was accepted."""
+
+    def results(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        ctx = self.ctx
+        values = np.array(ctx.rows) if ctx.rows else np.empty((0, self.runner.system.n_outputs))
+        return np.array(ctx.all_times), values, np.array(self.steps)
+
+
+class FixedLoop(Actor):
+    """The fixed-step time loop without per-step objects: the same run as
+    :class:`ControllerLoop` with :class:`~cosimstep.controllers.Fixed` (same calls, values,
+    counts, stored rows and errors; tests/orchestration/test_lean_fixed_step.py).
+
+    Points go into a preallocated table (grown in chunks if time events add steps), the clock's
+    compensated sum is inlined, and the store and the progress bar receive the new steps in
+    batches: at most :attr:`BATCH` steps, and as many as took about :attr:`PUBLISH_SECONDS`
+    when steps are slow, so rows still reach the store's commit (every 0.5 s) while a run of
+    slow sub-models goes on — what a crash keeps — without a clock read per step. With inputs
+    held and no feedthrough, :class:`~cosimstep.masters._HeldKernel` does the master's step;
+    with inputs extrapolated (order 1 or 2) and no feedthrough (input derivatives or not),
+    :class:`~cosimstep.masters._ExtrapolatingKernel` does the steps after the first ``order``
+    of each segment that are as long as the ones before (values equal to rounding);
+    otherwise :meth:`Master.step` is called with the history the controller loop would pass.
+    """
+
+    BATCH = 256  # at most this many steps between store writes and progress updates
+    PUBLISH_SECONDS = 0.1  # batch size: the steps that took about this long
+
+    def __init__(self, runner: Master, step: float, t0: float, until: float,
+                 events: list[float], sink: Store | None, bar: Any,
+                 call_timeout: float | None = None) -> None:
+        self.runner, self.h_step = runner, step
+        self.call_timeout = call_timeout
+        self.t0, self.until, self.events = t0, until, events
+        self.sink, self.bar = sink, bar
+        self.t = t0
+        self.n = -1  # index of the newest point in the table
+        self.rejected = 0
+        m = runner.system.n_outputs
+        # room for the whole run if it is small, else grown by doubling (at most ~32 MB first)
+        rows = int(min((until - t0) / step, max(1024, 4_000_000 // max(m, 1)))) \
+            + len(events) + 2
+        self.times = np.empty(rows)
+        self.table = np.empty((rows, m))
+        self.hs = np.empty(rows)
+        self.lean: Any = None  # the master's lean step (_HeldKernel, _ExtrapolatingKernel)
+        self._state: tuple[float, float, int, int] | None = None  # set by the first turn
+        self._stored = 0  # points handed to the store so far
+        self._shown = 0  # steps shown on the progress bar so far
+        self._published = (0, time.perf_counter())  # (n, time) of the last publication
+
+    def _grow(self) -> None:
+        rows = 2 * self.times.shape[0]
+        for name in ("times", "table", "hs"):
+            old = getattr(self, name)
+            new = np.empty((rows, *old.shape[1:]))
+            new[:old.shape[0]] = old
+            setattr(self, name, new)
+
+    @property
+    def time(self) -> float:
+        return self.t
+
+    @property
+    def finished(self) -> bool:
+        return self.t >= self.until
+
+    def act(self, limit: float) -> None:
+        """Steps until ``limit``; with a call time-out, in a watched worker thread."""
+        if self.call_timeout:
+            self.runner._watch = _Watchdog(self.call_timeout)
+            self.runner._watch.run(lambda: self._run_to(limit), self.runner.system.names)
+        else:
+            self._run_to(limit)
+
+    def _start(self) -> None:
+        t = self.t0
+        y0 = self.runner.initialize(t)
+        self.times[0], self.table[0], self.n = t, y0, 0
+        self.lean = self.runner.held_kernel() or self.runner.extrapolating_kernel()
+        self._state = (t, 0.0, 0, 1)  # (clock, carry, segment, due): see _run_to
+        self._published = (0, time.perf_counter())
+
+    def _run_to(self, limit: float) -> None:
+        if self._state is None:
+            self._start()
+        runner, until, events, lean = self.runner, self.until, self.events, self.lean
+        # An extrapolating kernel needs `order` equal steps before the step in its segment: the
+        # general step does the first `order` steps of each segment (where it lowers the order
+        # and may use grey-box slopes). Within a segment every step is h_plain except the one
+        # landing on the event or end time, so "h == h_plain" after them means equal spacing.
+        lean_after = getattr(lean, "order", 0)
+        clock, carry, segment, due = self._state  # clock: _Clock, inlined
+        t, n = self.t, self.n
+        table = self.table
+        flat, base = table.reshape(-1), table.ctypes.data
+        h_plain = min(self.h_step, runner.max_step)
+        event, landing = until, min(until, limit)
+        while t < limit:
+            if events:  # without events the landing is always the end time
+                event = _next_landing(events, t, until)
+                landing = min(event, limit)
+            h = h_plain
+            if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
+                h = landing - t  # land exactly on the event / end time
+            if n + 1 == table.shape[0]:
+                self._grow()
+                table = self.table
+                flat, base = table.reshape(-1), table.ctypes.data
+            if lean is not None and (not lean_after or (n - segment >= lean_after
+                                                        and h == h_plain)):
+                lean.step(t, h, n, flat, base)
+            else:
+                first = max(segment, n + 1 - HISTORY_ROWS)
+                table[n + 1] = runner.step(t, h, self.times[first:n + 1].tolist(),
+                                           table[first:n + 1].copy())
+            s = clock + h
+            if abs(clock) >= abs(h):
+                carry += (clock - s) + h
+            else:
+                carry += (h - s) + clock
+            clock = s
+            value = clock + carry
+            t = landing if abs(value - landing) <= 1e-9 * h else value
+            n += 1
+            self.times[n], self.hs[n - 1] = t, h
+            self.n, self.t = n, t
+            if t == event and t < until:
+                segment = n
+                runner.restart()
+            if n == due:
+                due = n + self._publish()
+        self._state = (clock, carry, segment, due)
+
+    def _publish(self) -> int:
+        """Hand the points not yet stored to the store, and the steps to the progress bar;
+        return how many steps to run until the next publication."""
+        n = self.n
+        if self.sink is not None and n >= self._stored:
+            first = self._stored
+            self.sink.add_points(first, self.times[first:n + 1].tolist(),
+                                 self.table[first:n + 1].tolist())
+            if first == 0:
+                first = 1
+            self.sink.add_accepted_attempts(self.times[first - 1:n].tolist(),
+                                            self.hs[first - 1:n].tolist())
+            self._stored = n + 1
+        if self.bar is not None and n > self._shown:
+            self.bar.update(float(np.sum(self.hs[self._shown:n])))
+            self._shown = n
+        last_n, last_time = self._published
+        now = time.perf_counter()
+        self._published = (n, now)
+        per_step = (now - last_time) / max(n - last_n, 1)
+        return max(1, min(self.BATCH, int(self.PUBLISH_SECONDS / per_step))) if per_step > 0 \
+            else self.BATCH
+
+    def finish(self) -> None:
+        if self.lean is not None:
+            self.lean.sync()
+            self.lean = None
+        self.runner._watch = None
+        self._publish()
+
+    def results(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = self.n
+        return (self.times[:n + 1].copy(), self.table[:n + 1].copy(), self.hs[:max(n, 0)].copy())
+
+
+class _Clock:
+    """Compensated (Neumaier) sum of the steps: 10^4 steps of 0.001 end at 10.0, not 10 - 1e-12."""
+
+    def __init__(self, t0: float) -> None:
+        self._sum, self._carry = t0, 0.0
+
+    def add(self, h: float) -> None:
+        s = self._sum + h
+        if abs(self._sum) >= abs(h):
+            self._carry += (self._sum - s) + h
+        else:
+            self._carry += (h - s) + self._sum
+        self._sum = s
+
+    @property
+    def value(self) -> float:
+        return self._sum + self._carry
+
+
+def _next_landing(events: list[float], t: float, t_end: float) -> float:
+    i = bisect.bisect_right(events, t + 1e-12 * max(1.0, abs(t)))
+    return min(events[i], t_end) if i < len(events) else t_end

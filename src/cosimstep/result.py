@@ -1,0 +1,113 @@
+"""What a run produced: :class:`SimulationResult`, with each sub-model's share
+(:class:`ModelStats`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cosimstep.reference import ErrorReport
+
+
+@dataclass
+class ModelStats:
+    """One sub-model's share of a run (for multi-rate runs each has its own steps)."""
+
+    calls: int
+    accepted: int
+    rejected: int
+    corrections: int  # multi-rate: steps re-run after a failed verification of extrapolated input
+    step_sizes: np.ndarray = field(repr=False)
+    times: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    """The sub-model's own communication points (multi-rate: its own steps; synchronous: the
+    common grid)."""
+    values: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
+    """Its outputs there, as it computed them (one column per output, in declaration order)."""
+    replaced: int = 0
+    """Multi-rate: accepted steps later dropped by a rollback or re-run in several pieces, net
+    (the attempts log holds ``accepted + replaced`` accepted attempts)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        s = self.step_sizes
+        return {"calls": self.calls, "accepted": self.accepted, "rejected": self.rejected,
+                "corrections": self.corrections,
+                "h_min": float(s.min()) if s.size else None,
+                "h_max": float(s.max()) if s.size else None}
+
+
+@dataclass
+class SimulationResult:
+    """What a run produced. ``status`` is ``"ok"``, ``"failed"`` or ``"interrupted"``."""
+
+    status: str
+    message: str
+    t_end: float
+    names: list[str]
+    units: list[str]
+    times: np.ndarray
+    values: np.ndarray
+    calls: dict[str, int]
+    steps_accepted: int
+    steps_rejected: int
+    step_sizes: np.ndarray
+    wall_s: float
+    time_in_models: dict[str, float]
+    store: str | None = None
+    error: ErrorReport | None = None
+    reference: np.ndarray | None = field(default=None, repr=False)
+    models: dict[str, ModelStats] = field(default_factory=dict)
+    error_estimate: float | None = None
+    """The global error the run estimates it delivered, without a reference, in the norm
+    ``tol`` bounds (``max |e| / (1 + |y|)`` for the default ``atol = rtol = tol``); ``None``
+    for controllers without error control. Compare with ``error.max_scaled``."""
+    estimate_calls: int = 0
+    """Calls the estimate cost (the looser run of ``estimate="rerun"``), not in ``calls``."""
+
+    @property
+    def success(self) -> bool:
+        return self.status == "ok"
+
+    @property
+    def calls_total(self) -> int:
+        return int(sum(self.calls.values()))
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        """Trajectory of an exchanged output, e.g. ``result["bar1.theta"]``."""
+        try:
+            return self.values[:, self.names.index(name)]
+        except ValueError:
+            raise KeyError(f"no output '{name}'; outputs: {', '.join(self.names)}") from None
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON summary the CLI prints with ``--json``."""
+        steps = self.step_sizes
+        out: dict[str, Any] = {
+            "status": self.status,
+            "message": self.message,
+            "t_end": self.t_end,
+            "calls": dict(self.calls),
+            "calls_total": self.calls_total,
+            "steps_accepted": self.steps_accepted,
+            "steps_rejected": self.steps_rejected,
+            "h_min": float(steps.min()) if steps.size else None,
+            "h_max": float(steps.max()) if steps.size else None,
+            "wall_s": self.wall_s,
+            "master_overhead_s": max(self.wall_s - sum(self.time_in_models.values()), 0.0),
+            "store": self.store,
+        }
+        out["error_estimate"] = self.error_estimate
+        out["error_estimate_calls"] = self.estimate_calls
+        if self.error is not None:
+            out["error"] = self.error.to_dict()
+        out["models"] = {n: m.to_dict() for n, m in self.models.items()}
+        return out
+
+    def to_pandas(self):
+        import pandas as pd
+
+        return pd.DataFrame(self.values, index=pd.Index(self.times, name="t"), columns=self.names)
+
+
+__all__ = ["ModelStats", "SimulationResult"]

@@ -1,0 +1,349 @@
+"""One run: the store, the progress bar, failure capture and the result, around the kernel.
+
+:class:`Run` is the only place that opens the results store, shows progress, turns a failure or
+an interrupt into a status and a message, and assembles the :class:`SimulationResult`; the
+coupling scheme is an object chosen once (:func:`scheme_for`) that hands the kernel its actors
+and says what it produced:
+
+- :class:`Synchronous`: every sub-model takes the same step (Jacobi, Gauss–Seidel or a fixed
+  order), one actor (:mod:`cosimstep.loops`);
+- :class:`MultiRate`: one actor per sub-model with its own step (:mod:`cosimstep.multirate`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cosimstep.controllers import Controller, Fixed
+from cosimstep.errors import StepSizeError, SubModelError
+from cosimstep.kernel import Actor, Kernel
+from cosimstep.loops import ControllerLoop, FixedLoop
+from cosimstep.masters import Master, MasterOptions
+from cosimstep.reference import ErrorReport, Reference, error_report
+from cosimstep.result import ModelStats, SimulationResult
+from cosimstep.store import Store
+
+
+@dataclass
+class Outcome:
+    """What a scheme produced, however far it got."""
+
+    t_end: float
+    times: np.ndarray  # the common grid of the result
+    values: np.ndarray
+    steps: np.ndarray  # every accepted step, all sub-models
+    models: dict[str, ModelStats]
+    calls: dict[str, int]
+    time_in_models: dict[str, float]
+    accepted: int
+    rejected: int
+    error_estimate: float | None
+
+
+class Scheme(ABC):
+    """A coupling scheme: its actors, how it ends, and what it produced."""
+
+    def __init__(self, compiled: Any, t0: float, until: float) -> None:
+        self.compiled, self.t0, self.until = compiled, t0, until
+
+    @property
+    @abstractmethod
+    def t(self) -> float:
+        """How far the run got (every sub-model is at least there)."""
+
+    @abstractmethod
+    def actors(self, kernel: Kernel, sink: Store | None, bar: Any) -> list[Actor]: ...
+
+    def settle(self) -> list[Actor]:
+        """Actors to run again once the kernel's heap is empty (none by default)."""
+        return []
+
+    @abstractmethod
+    def close(self) -> None:
+        """Hand the last rows to the store and free the sub-models; called in any case."""
+
+    @abstractmethod
+    def outcome(self) -> Outcome: ...
+
+    @abstractmethod
+    def error(self, reference: Reference, out: Outcome,
+              names: list[str]) -> tuple[ErrorReport, np.ndarray]:
+        """The error against ``reference`` and its values on the result's grid."""
+
+    def store(self, sink: Store, out: Outcome) -> None:  # noqa: B027 - optional hook
+        """Anything the store does not have yet once the run has ended."""
+
+
+class Synchronous(Scheme):
+    """Every sub-model takes the same communication step (one actor)."""
+
+    def __init__(self, compiled: Any, t0: float, until: float, controller: Controller,
+                 master: MasterOptions, events: list[float]) -> None:
+        super().__init__(compiled, t0, until)
+        self.controller, self.master, self.events = controller, master, events
+        self.runner = Master(compiled, master)
+        self.loop: FixedLoop | ControllerLoop | None = None
+
+    @property
+    def t(self) -> float:
+        return self.loop.t if self.loop is not None else self.t0
+
+    def actors(self, kernel: Kernel, sink: Store | None, bar: Any) -> list[Actor]:
+        # The fixed step needs no controller, context or attempt per step: a lean loop gives
+        # the same run (a subclass of Fixed may change attempt(), so only Fixed qualifies).
+        if type(self.controller) is Fixed:
+            self.loop = FixedLoop(self.runner, self.controller.step, self.t0, self.until,
+                                  self.events, sink, bar, self.master.call_timeout)
+        else:
+            self.loop = ControllerLoop(self.runner, self.controller, self.t0, self.until,
+                                       self.events, sink, bar)
+        return [self.loop]
+
+    def close(self) -> None:
+        try:
+            if self.loop is not None:
+                self.loop.finish()  # hands the last rows to the store (may fail: disk full)
+        finally:
+            self.runner.terminate()  # frees FMU instances and unpacked folders in any case
+
+    def outcome(self) -> Outcome:
+        assert self.loop is not None
+        compiled, runner = self.compiled, self.runner
+        times, values, steps = self.loop.results()
+        rejected = self.loop.rejected
+        models = {n: ModelStats(int(c), len(steps), rejected, 0, steps.copy(), times,
+                                values[:, compiled.output_slices[k]])
+                  for k, (n, c) in enumerate(zip(compiled.names, runner.calls))}
+        return Outcome(
+            float(self.loop.t), times, values, steps, models,
+            {n: int(c) for n, c in zip(compiled.names, runner.calls)},
+            {n: float(s) for n, s in zip(compiled.names, runner.time_in_models)},
+            len(steps), rejected, getattr(self.controller, "error_estimate", None))
+
+    def error(self, reference: Reference, out: Outcome,
+              names: list[str]) -> tuple[ErrorReport, np.ndarray]:
+        cols = [self.compiled.output_names.index(n) for n in names]
+        reference.solve(self.t0, out.t_end)  # only as far as the run got
+        ref_values = reference.values(out.times, names)
+        return error_report(out.times, out.values[:, cols], ref_values, names), ref_values
+
+
+class MultiRate(Scheme):
+    """One adaptive step per sub-model (:mod:`cosimstep.multirate`), one actor each.
+
+    The controller lends its error policy (tolerance, limits, global budget) to every
+    sub-model's own step control. Results: every sub-model's own points, and on the union of all
+    points each trajectory evaluated by its local cubic; the error against the reference is
+    taken at each sub-model's own points (no interpolation error enters it).
+    """
+
+    def __init__(self, compiled: Any, t0: float, until: float, controller: Controller,
+                 master: MasterOptions, events: list[float]) -> None:
+        from cosimstep.multirate import Multirate
+
+        super().__init__(compiled, t0, until)
+        policy = getattr(controller, "policy", None)
+        if policy is None:
+            raise ValueError(f"the multirate master needs an error-controlled controller (e.g. "
+                             f"--tol 1e-4 or --controller pc); '{controller.name}' has no "
+                             "tolerance")
+        h0 = getattr(controller, "h0", None) or 1e-4 * (until - t0)
+        self.race = Multirate(compiled, policy, min(max(h0, policy.hmin), policy.hmax),
+                              order=master.extrapolation, interpolation=master.interpolation,
+                              call_timeout=master.call_timeout)
+        self.events = events
+        self._behind = t0
+
+    @property
+    def t(self) -> float:
+        tracks = self.race.tracks
+        return min(tr.t for tr in tracks) if all(tr.times for tr in tracks) else self.t0
+
+    def actors(self, kernel: Kernel, sink: Store | None, bar: Any) -> list[Actor]:
+        if sink is not None:
+            self.race.on_attempt = lambda name, t, h, ok: sink.add_attempt(name, t, h, ok, None)
+
+        def on_step(track: Any) -> None:
+            t_min = min(tr.t for tr in self.race.tracks)
+            bar.update(t_min - self._behind)
+            self._behind = t_min
+
+        self.race.initialize(self.t0, self.until, self.events)
+        return self.race.actors(kernel, on_step if bar is not None else None)
+
+    def settle(self) -> list[Actor]:
+        return self.race.settle()
+
+    def close(self) -> None:
+        for m in self.compiled.models:
+            with contextlib.suppress(Exception):
+                m.terminate()
+
+    def outcome(self) -> Outcome:
+        race, tracks, compiled = self.race, self.race.tracks, self.compiled
+        started = all(tr.times for tr in tracks)
+        t_end = self.t
+        grid = np.array([self.t0])
+        values = np.empty((0, compiled.n_outputs))
+        if started:  # the union of all points up to where every trajectory reaches
+            grid = np.unique(np.concatenate([np.asarray(tr.times) for tr in tracks]))
+            grid = grid[grid <= t_end * (1 + 1e-14) + 1e-15]
+            values = np.hstack([race.values_at(tr.index, grid) for tr in tracks])
+        models = {tr.name: ModelStats(tr.calls, tr.accepted, tr.rejected, tr.corrections,
+                                      np.array(tr.steps), np.asarray(tr.times),
+                                      np.array(tr.rows).reshape(len(tr.times), -1),
+                                      tr.replaced)
+                  for tr in tracks}
+        steps = np.concatenate([np.array(tr.steps) for tr in tracks]) if tracks \
+            else np.zeros(0)
+        return Outcome(float(t_end), grid, values, steps, models,
+                       {tr.name: tr.calls for tr in tracks},
+                       {tr.name: tr.time_in_model for tr in tracks},
+                       sum(tr.accepted for tr in tracks), sum(tr.rejected for tr in tracks),
+                       race.error_estimate())
+
+    def error(self, reference: Reference, out: Outcome,
+              names: list[str]) -> tuple[ErrorReport, np.ndarray]:
+        reference.solve(self.t0, float(max(tr.t for tr in self.race.tracks)))
+        return self._own_point_error(reference, names), reference.values(out.times, names)
+
+    def _own_point_error(self, reference: Reference, names: list[str]) -> ErrorReport:
+        """The error against the reference at each sub-model's own points (no interpolation)."""
+        compiled, tracks = self.compiled, self.race.tracks
+        diffs, scaled, per = [], [], {}
+        for tr in tracks:
+            sl = compiled.output_slices[tr.index]
+            own = [n for n in compiled.output_names[sl] if n in reference.mapping]
+            if not own:
+                continue
+            cols = [compiled.output_names[sl].index(n) for n in own]
+            ref_own = reference.values(np.asarray(tr.times), own)
+            d = np.abs(np.array(tr.rows)[:, cols] - ref_own)
+            diffs.append(d.ravel())
+            scaled.append((d / (1.0 + np.abs(ref_own))).ravel())
+            per.update({n: float(d[:, c].max()) for c, n in enumerate(own)})
+        all_d = np.concatenate(diffs) if diffs else np.zeros(0)
+        return ErrorReport(float(all_d.max()) if all_d.size else 0.0,
+                           float(np.sqrt(np.mean(all_d**2))) if all_d.size else 0.0,
+                           {n: per[n] for n in names if n in per},
+                           int(sum(len(tr.times) for tr in tracks)),
+                           float(np.concatenate(scaled).max()) if all_d.size else 0.0)
+
+    def store(self, sink: Store, out: Outcome) -> None:
+        """The common grid (known only at the end) and every sub-model's own points."""
+        for i, (t, y) in enumerate(zip(out.times, out.values)):
+            sink.add_point(i, float(t), y)
+        for tr in self.race.tracks:
+            sl = self.compiled.output_slices[tr.index]
+            sink.add_own_points(list(range(sl.start, sl.stop)), np.asarray(tr.times),
+                                np.array(tr.rows).reshape(len(tr.times), -1))
+
+
+def scheme_for(compiled: Any, t0: float, until: float, controller: Controller,
+               master: MasterOptions, events: list[float]) -> Scheme:
+    """The coupling scheme of a run, chosen once."""
+    kind = MultiRate if master.name == "multirate" else Synchronous
+    return kind(compiled, t0, until, controller, master, events)
+
+
+class Run:
+    """One run of a scheme: store, progress, failure capture, result."""
+
+    def __init__(self, scheme: Scheme, *, store: str | Path | None, name: str,
+                 settings: dict[str, Any], progress: bool | None) -> None:
+        self.scheme, self.store, self.name = scheme, store, name
+        self.settings, self.progress = settings, progress
+
+    def execute(self, reference: Reference | None,
+                amend: Callable[[SimulationResult], None] | None = None, *,
+                raise_on_failure: bool = False) -> SimulationResult:
+        """Run to the end or to a failure and return the result; ``amend(result)`` runs before
+        the store's summary is written (a re-run error estimate). The failure is raised after
+        the store is closed if ``raise_on_failure``."""
+        scheme, compiled = self.scheme, self.scheme.compiled
+        sink = Store(self.store) if self.store is not None else None
+        if sink is not None:
+            sink.begin(self.name, self.settings, compiled.output_names, compiled.output_units)
+        wall0 = time.perf_counter()
+        bar = _progress(self.progress, scheme.t0, scheme.until)
+        try:
+            status, message, failure = self._drive(sink, bar)
+        finally:
+            try:
+                scheme.close()
+            finally:
+                if bar is not None:
+                    bar.close()
+        wall = time.perf_counter() - wall0
+        result = self._result(status, message, wall, reference, sink)
+        if amend is not None:
+            amend(result)
+        if sink is not None:
+            sink.finish(result.status, result.message, result.t_end, result.wall_s,
+                        result.summary(), result.calls, result.time_in_models)
+            sink.close()
+        if failure is not None and raise_on_failure:
+            raise failure
+        return result
+
+    def _drive(self, sink: Store | None,
+               bar: Any) -> tuple[str, str, BaseException | None]:
+        """The kernel over the scheme's actors; ``(status, message, failure)``."""
+        scheme = self.scheme
+        try:
+            kernel = Kernel(scheme.until)
+            for actor in scheme.actors(kernel, sink, bar):
+                kernel.add(actor)
+            kernel.run(scheme.settle)
+        except SubModelError as exc:
+            return "failed", str(exc), exc
+        except StepSizeError as exc:
+            return "failed", f"at t = {scheme.t:.9g}: {exc}", exc
+        except Exception as exc:
+            return "failed", f"at t = {scheme.t:.9g}: {type(exc).__name__}: {exc}", exc
+        except KeyboardInterrupt as exc:
+            return "interrupted", f"interrupted by the user at t = {scheme.t:.9g}", exc
+        return "ok", "completed", None
+
+    def _result(self, status: str, message: str, wall: float, reference: Reference | None,
+                sink: Store | None) -> SimulationResult:
+        scheme, compiled = self.scheme, self.scheme.compiled
+        out = scheme.outcome()
+        err, ref_values = None, None
+        names = [n for n in compiled.output_names if reference is not None
+                 and n in reference.mapping]
+        if reference is not None and len(out.times) > 1 and out.t_end > scheme.t0:
+            err, ref_values = scheme.error(reference, out, names)
+        if sink is not None:
+            scheme.store(sink, out)
+            if ref_values is not None:
+                sink.add_reference(ref_values, [compiled.output_names.index(n) for n in names])
+        return SimulationResult(
+            status=status, message=message, t_end=out.t_end, names=compiled.output_names,
+            units=compiled.output_units, times=out.times, values=out.values, calls=out.calls,
+            steps_accepted=out.accepted, steps_rejected=out.rejected, step_sizes=out.steps,
+            wall_s=wall, time_in_models=out.time_in_models,
+            store=str(self.store) if self.store is not None else None, error=err,
+            reference=ref_values, models=out.models, error_estimate=out.error_estimate)
+
+
+def _progress(progress: bool | None, t0: float, until: float) -> Any:
+    if progress is False:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=until - t0, delay=2.0, unit="s", file=sys.stderr,
+                disable=None if progress is None else False,
+                bar_format="{l_bar}{bar}| t={n:.3f}/{total:.3f} s [{elapsed}<{remaining}]")
+
+
+__all__ = ["MultiRate", "Outcome", "Run", "Scheme", "Synchronous", "scheme_for"]
