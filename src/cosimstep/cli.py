@@ -106,25 +106,8 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
          controller: str | None, step: float | None, tol: float | None, seed: int | None,
          out: str | None, options: dict[str, Any] | None = None,
          interpolation: str | None = None, estimate: str = "sum") -> SimulationResult:
-    opts = spec.master
-    opts = MasterOptions(master or opts.name,
-                         opts.extrapolation if extrapolation is None else extrapolation,
-                         opts.order, opts.call_timeout, interpolation or opts.interpolation)
-    problems = [Problem("master", p, "see `cosimstep run --help`") for p in opts.problems()]
-    if problems:
-        _config_exit(ConfigurationError(problems, spec.source))
-    settings: dict[str, Any] = dict(spec.controller)
-    if controller is not None and controller != settings.get("name"):
-        settings = {"name": controller}  # options in the file belong to another controller
-    elif controller is None and tol is not None and settings.get("name") not in ADAPTIVE:
-        settings = {"name": DEFAULT_ADAPTIVE}  # --tol alone: the default adaptive controller
-    if step is not None:
-        settings["step"] = step
-    if tol is not None:
-        settings["tol"] = tol
-    if seed is not None:
-        settings["seed"] = seed
-    settings.update(options or {})
+    opts = _master_options(spec, master, extrapolation, interpolation)
+    settings = _controller_settings(spec, controller, step, tol, seed, options)
     name = settings.pop("name", None)
     try:
         ctrl = make_controller(name, settings.pop("step", None), settings.pop("tol", None),
@@ -132,24 +115,66 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
     except (TypeError, ValueError) as exc:
         _config_exit(ConfigurationError(
             [Problem("controller", str(exc), "see `cosimstep run --help`")], spec.source))
-    if opts.name == "multirate" and getattr(ctrl, "policy", None) is None:
-        _config_exit(ConfigurationError(
-            [Problem("controller", f"the multirate master needs an error-controlled controller; "
-                     f"'{ctrl.name}' has no tolerance", "give --tol TOL (or --controller pc)")],
-            spec.source))
-    unable = [n for n, m in spec.system.models.items() if not m.capabilities.can_save_state]
-    if unable and (ctrl.needs_rollback or opts.name == "multirate"):
-        what = f"controller '{ctrl.name}'" if ctrl.needs_rollback else "the multirate master"
-        _config_exit(ConfigurationError(
-            [Problem("controller", f"{what} rejects and re-runs steps, but "
-                     f"{', '.join(unable)} cannot save and restore its state",
-                     "use a fixed step (--controller fixed --step H) with the gauss-seidel or "
-                     "jacobi master")], spec.source))
+    _check_scheme(ctrl, opts, spec)
     _check_estimate(estimate, ctrl, spec)
     store = out or f"{spec.name}.db"
     return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=store,
                     name=spec.name, config={"source": spec.source, "system": spec.raw},
                     progress=None, estimate=estimate)
+
+
+def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | None,
+                    interpolation: str | None) -> MasterOptions:
+    """The file's ``[master]`` with the command line's choices on top (exit 2 if invalid)."""
+    opts = spec.master
+    opts = MasterOptions(master or opts.name,
+                         opts.extrapolation if extrapolation is None else extrapolation,
+                         opts.order, opts.call_timeout, interpolation or opts.interpolation)
+    problems = [Problem("master", p, "see `cosimstep run --help`") for p in opts.problems()]
+    if problems:
+        _config_exit(ConfigurationError(problems, spec.source))
+    return opts
+
+
+def _controller_settings(spec: SystemSpec, controller: str | None, step: float | None,
+                         tol: float | None, seed: int | None,
+                         options: dict[str, Any] | None) -> dict[str, Any]:
+    """The file's ``[controller]`` with the command line's choices on top."""
+    settings: dict[str, Any] = dict(spec.controller)
+    if controller is not None and controller != settings.get("name"):
+        settings = {"name": controller}  # options in the file belong to another controller
+    elif controller is None and tol is not None and settings.get("name") not in ADAPTIVE:
+        settings = {"name": DEFAULT_ADAPTIVE}  # --tol alone: the default adaptive controller
+    for key, value in (("step", step), ("tol", tol), ("seed", seed)):
+        if value is not None:
+            settings[key] = value
+    settings.update(options or {})
+    return settings
+
+
+def _check_scheme(ctrl: Any, opts: MasterOptions, spec: SystemSpec) -> None:
+    """Refuse (exit 2, every reason) a controller or master the sub-models cannot serve."""
+    problems = []
+    multirate = opts.name == "multirate"
+    if multirate and getattr(ctrl, "policy", None) is None:
+        problems.append(Problem("controller", "the multirate master needs an error-controlled "
+                                f"controller; '{ctrl.name}' has no tolerance",
+                                "give --tol TOL (or --controller pc)"))
+    unable = [n for n, m in spec.system.models.items() if not m.capabilities.can_save_state]
+    if unable and (ctrl.needs_rollback or multirate):
+        what = f"controller '{ctrl.name}'" if ctrl.needs_rollback else "the multirate master"
+        problems.append(Problem("controller", f"{what} rejects and re-runs steps, but "
+                                f"{', '.join(unable)} cannot save and restore its state",
+                                "use a fixed step (--controller fixed --step H) with the "
+                                "gauss-seidel or jacobi master"))
+    if multirate:
+        from cosimstep.multirate import refusals
+
+        problems += [Problem("--master multirate", reason, "use --master gauss-seidel or jacobi")
+                     for reason in refusals(spec.system.models, opts.interpolation,
+                                            state=False)]
+    if problems:
+        _config_exit(ConfigurationError(problems, spec.source))
 
 
 def _check_estimate(estimate: str, ctrl: Any, spec: SystemSpec) -> None:

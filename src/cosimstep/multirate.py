@@ -133,15 +133,7 @@ class Multirate:
     def __init__(self, system: CompiledSystem, policy: StepPolicy, h0: float,
                  order: int = 2, interpolation: str | None = None,
                  call_timeout: float | None = None) -> None:
-        problems = [f"'{n}' cannot save/restore its state"
-                    for n, m in zip(system.names, system.models)
-                    if not m.capabilities.can_save_state]
-        problems += [f"'{n}' has direct feedthrough" for n, m in zip(system.names, system.models)
-                     if m.capabilities.has_direct_feedthrough]
-        if interpolation == "hermite":
-            problems += [f"'{n}' gives no output derivatives (needed by 'hermite')"
-                         for n, m in zip(system.names, system.models)
-                         if not m.capabilities.provides_derivatives]
+        problems = refusals(dict(zip(system.names, system.models)), interpolation)
         if problems:
             raise ValueError("the multirate master re-runs steps and interpolates trajectories; "
                              + "; ".join(problems) + " — use the gauss-seidel or jacobi master")
@@ -738,6 +730,23 @@ class _Stepper(Actor):
             race._forget_states()
 
 
+def refusals(models: dict[str, Any], interpolation: str | None = None, *,
+             state: bool = True) -> list[str]:
+    """Why the multi-rate master cannot run these sub-models (empty: it can).
+
+    It re-runs steps (every sub-model must save and restore its state) and hands each
+    sub-model's trajectory to the others (an output that depends on the input at the same
+    instant has no trajectory of its own). ``state=False`` leaves out the first reason."""
+    problems = [f"'{n}' cannot save/restore its state" for n, m in models.items()
+                if state and not m.capabilities.can_save_state]
+    problems += [f"'{n}' has direct feedthrough" for n, m in models.items()
+                 if m.capabilities.has_direct_feedthrough]
+    if interpolation == "hermite":
+        problems += [f"'{n}' gives no output derivatives (needed by 'hermite')"
+                     for n, m in models.items() if not m.capabilities.provides_derivatives]
+    return problems
+
+
 def _copy_policy(policy: StepPolicy) -> StepPolicy:
     """Each sub-model's own copy of the controller's policy, with the global-error budget the
     multi-rate estimate's :data:`CALIBRATION` was measured with (``distribute``, cancellation
@@ -750,4 +759,4 @@ def _copy_policy(policy: StepPolicy) -> StepPolicy:
     return StepPolicy(**fields)
 
 
-__all__ = ["Multirate", "Track"]
+__all__ = ["Multirate", "Track", "refusals"]

@@ -83,7 +83,7 @@ def _helper_models(folder):
     (folder / "models.py").write_text(
         "import sys\n"
         f"sys.path.insert(0, {str(__import__('pathlib').Path(__file__).parents[1])!r})\n"
-        "from helpers import Clock, Integrator\n")
+        "from helpers import Clock, Gain, Integrator\n")
 
 
 def test_failed_run_exits_1(tmp_path):
@@ -182,6 +182,24 @@ def test_rollback_without_state_saving_is_a_configuration_error(tmp_path):
         assert res.exit_code == 2, res.output
         assert "clock cannot save and restore its state" in res.output
         assert "--controller fixed" in res.output
+
+
+def test_multirate_with_direct_feedthrough_is_a_configuration_error(tmp_path):
+    # a sub-model whose output depends on its input at the same instant has no trajectory of
+    # its own: refused with exit 2 and every reason, not a traceback from the master
+    _helper_models(tmp_path)
+    (tmp_path / "s.toml").write_text(
+        'until = 1.0\n[models.sink]\ntype = "python"\nclass = "models.py:Integrator"\n'
+        '[models.gain]\ntype = "python"\nclass = "models.py:Gain"\n'
+        '[[connections]]\nfrom = "sink.x"\nto = "gain.u"\n'
+        '[[connections]]\nfrom = "gain.y"\nto = "sink.u"\n')
+    res = CliRunner().invoke(main, ["run", str(tmp_path / "s.toml"), "--master", "multirate",
+                                    "--tol", "1e-4", "--interpolation", "hermite"])
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    assert "'gain' has direct feedthrough" in res.output
+    assert "'gain' gives no output derivatives" in res.output  # both listed at once
+    assert "--master gauss-seidel" in res.output
 
 
 def test_run_estimate_rerun_reports_its_estimate_and_cost(examples, tmp_path):
