@@ -702,11 +702,10 @@ class _ExtrapolatingKernel:
             self._flat, self._rows = flat, flat.reshape(-1, m)
         if h != self._h:
             self._scale(h)
-        rows = self._rows
-        calls, spent, clock, dot = self.calls, self.time, time.perf_counter, np.dot
+        rows, dot = self._rows, np.dot
         for k, model, raw, block, gather, w, deriv, identity, a, b, out, buffer in self.plan:
             if deriv is not None:
-                q, wd, src, d = deriv
+                _, wd, _, d = deriv
                 # derivatives 1..q at t: fixed weights (scaled for h) of the rows, times gains
                 if block is not None:
                     r0, r1, c0, c1, _ = block
@@ -716,68 +715,90 @@ class _ExtrapolatingKernel:
                 if not identity:
                     d *= a
             if raw is not None:
-                if deriv is None:
-                    (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
-                     out_offset, buffer_address) = raw
-                    if block is not None:
-                        r0, r1, c0, c1, wb = block
-                        dot(wb, rows[n + r0:n + r1, c0:c1], out=buffer)
-                        if not identity:
-                            buffer[:] = a * buffer + b
-                    else:
-                        x = (w * flat[gather + row]).sum(axis=0)
-                        buffer[:] = x if identity else a * x + b
-                else:
-                    (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
-                     set_derivatives, deriv_vr, n_deriv, deriv_order, d_model, d_address,
-                     out_offset, buffer_address, in_offset) = raw
-                    if in_offset is None:
-                        x = flat[src + row]
-                        buffer[:] = x if identity else a * x + b
-                    else:
-                        buffer_address = base + 8 * row + in_offset  # row n, unchanged
-                    d_model[:q] = d
-                    d_model[q:] = 0.0
-                calls[k] += 1
-                start = clock()
-                status = set_real(component, in_vr, n_in, buffer_address)
-                if status > 1:
-                    self._fail(k, t, h, fail("fmi2SetReal", status))
-                if deriv is not None:
-                    status = set_derivatives(component, deriv_vr, n_deriv, deriv_order,
-                                             d_address)
-                    if status > 1:
-                        self._fail(k, t, h, fail("fmi2SetRealInputDerivatives", status))
-                    # as after set_input_derivatives (conservatively: "may be nonzero")
-                    model._derivatives_set, model._derivatives_stale = True, False
-                status = do_step(component, t, h, 1)
-                if status > 1:
-                    self._fail(k, t, h, fail("fmi2DoStep", status))
-                spent[k] += clock() - start
-                status = get_real(component, out_vr, n_out, base + 8 * (row + m) + out_offset)
-                if status > 1:
-                    self._fail(k, t, h, fail("fmi2GetReal", status))
+                self._fmu_step(k, t, h, n, flat, base, raw, block, gather, w, deriv, identity,
+                               a, b, buffer, model)
             else:
-                master = self.master
-                if deriv is not None:
-                    x = flat[deriv[2] + row]  # the value at t: row n
-                elif block is not None:
-                    r0, r1, c0, c1, wb = block
-                    x = dot(wb, rows[n + r0:n + r1, c0:c1])
-                else:
-                    x = (w * flat[gather + row]).sum(axis=0)
-                u = x if identity else a * x + b
-                calls[k] += 1
-                start = clock()
-                master._guard(k, t, model.set_inputs, u, h=h)
-                if deriv is not None:
-                    master._guard(k, t, model.set_input_derivatives, deriv[3].copy(), h=h)
-                master._guard(k, t, model.do_step, t, h, h=h)
-                spent[k] += clock() - start
-                flat[row + m + out.start:row + m + out.stop] = master._outputs(k, t, h)
+                self._python_step(k, t, h, n, flat, model, block, gather, w, deriv, identity,
+                                  a, b, out)
         new = flat[row + m:row + 2 * m]
         if not math.isfinite(sum(new.tolist())):  # NaN or inf somewhere (or a sum overflow)
             self.master._check_finite(range(len(self.plan)), t, new, h)
+
+    def _fmu_step(self, k: int, t: float, h: float, n: int, flat: np.ndarray, base: int,
+                  raw: tuple, block: Any, gather: Any, w: Any, deriv: Any, identity: bool,
+                  a: Any, b: Any, buffer: np.ndarray, model: Any) -> None:
+        """One FMU's step through its C functions: inputs (and derivatives) from the table's
+        rows, outputs straight into row ``n + 1``."""
+        m, row = self.m, n * self.m
+        rows, dot = self._rows, np.dot
+        calls, spent, clock = self.calls, self.time, time.perf_counter
+        if deriv is None:
+            (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
+             out_offset, buffer_address) = raw
+            if block is not None:
+                r0, r1, c0, c1, wb = block
+                dot(wb, rows[n + r0:n + r1, c0:c1], out=buffer)
+                if not identity:
+                    buffer[:] = a * buffer + b
+            else:
+                x = (w * flat[gather + row]).sum(axis=0)
+                buffer[:] = x if identity else a * x + b
+        else:
+            (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
+             set_derivatives, deriv_vr, n_deriv, deriv_order, d_model, d_address,
+             out_offset, buffer_address, in_offset) = raw
+            q, _, src, d = deriv
+            if in_offset is None:
+                x = flat[src + row]
+                buffer[:] = x if identity else a * x + b
+            else:
+                buffer_address = base + 8 * row + in_offset  # row n, unchanged
+            d_model[:q] = d
+            d_model[q:] = 0.0
+        calls[k] += 1
+        start = clock()
+        status = set_real(component, in_vr, n_in, buffer_address)
+        if status > 1:
+            self._fail(k, t, h, fail("fmi2SetReal", status))
+        if deriv is not None:
+            status = set_derivatives(component, deriv_vr, n_deriv, deriv_order,
+                                     d_address)
+            if status > 1:
+                self._fail(k, t, h, fail("fmi2SetRealInputDerivatives", status))
+            # as after set_input_derivatives (conservatively: "may be nonzero")
+            model._derivatives_set, model._derivatives_stale = True, False
+        status = do_step(component, t, h, 1)
+        if status > 1:
+            self._fail(k, t, h, fail("fmi2DoStep", status))
+        spent[k] += clock() - start
+        status = get_real(component, out_vr, n_out, base + 8 * (row + m) + out_offset)
+        if status > 1:
+            self._fail(k, t, h, fail("fmi2GetReal", status))
+
+    def _python_step(self, k: int, t: float, h: float, n: int, flat: np.ndarray, model: Any,
+                     block: Any, gather: Any, w: Any, deriv: Any, identity: bool, a: Any,
+                     b: Any, out: slice) -> None:
+        """One Python sub-model's step through the master's guard (errors named, time-outs)."""
+        m, row = self.m, n * self.m
+        rows, dot = self._rows, np.dot
+        calls, spent, clock = self.calls, self.time, time.perf_counter
+        master = self.master
+        if deriv is not None:
+            x = flat[deriv[2] + row]  # the value at t: row n
+        elif block is not None:
+            r0, r1, c0, c1, wb = block
+            x = dot(wb, rows[n + r0:n + r1, c0:c1])
+        else:
+            x = (w * flat[gather + row]).sum(axis=0)
+        u = x if identity else a * x + b
+        calls[k] += 1
+        start = clock()
+        master._guard(k, t, model.set_inputs, u, h=h)
+        if deriv is not None:
+            master._guard(k, t, model.set_input_derivatives, deriv[3].copy(), h=h)
+        master._guard(k, t, model.do_step, t, h, h=h)
+        spent[k] += clock() - start
+        flat[row + m + out.start:row + m + out.stop] = master._outputs(k, t, h)
 
     def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
         raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc
