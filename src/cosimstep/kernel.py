@@ -9,9 +9,11 @@ farthest behind act next (thesis appendix C's race), so
 - a sub-model moved back in time by a rollback is *woken*: queued again at its new time; a
   newer entry supersedes the older ones still in the heap.
 
-An actor acts "up to a limit": the end of the run. A synchronous actor alone in the heap runs
-its whole loop in one turn (the fixed-step path keeps its speed); discrete-event actors, whose
-next event time may change while the run goes on, will lower that limit to their next event.
+An actor acts "up to a limit": the end of the run, or the time of the next discrete actor (a
+discrete-event sub-model, :mod:`cosimstep.events`, whose next event time may change after each
+event). A synchronous actor alone in the heap runs its whole loop in one turn (the fixed-step
+path keeps its speed); with discrete actors it stops on each of their times, they act (rank -1:
+before anyone else at the same time), and it goes on.
 When the heap is empty the kernel asks ``settle`` whether anything is left to redo (the
 multi-rate master's last verification may roll sub-models back) and runs again if so.
 """
@@ -29,6 +31,7 @@ class Actor(ABC):
 
     name: str = "actor"
     rank: int = 0  # among actors at the same time, the lower rank acts first
+    bounds: bool = False  # a discrete actor: no other actor may step past its time
 
     @property
     @abstractmethod
@@ -53,9 +56,16 @@ class Kernel:
         self._heap: list[tuple[float, int, int, Actor]] = []
         self._order = itertools.count()  # ties of time and rank: first queued acts first
         self._latest: dict[int, int] = {}  # id(actor) -> its newest entry (others are stale)
+        self._bounds: list[Actor] = []  # the discrete actors
+
+    def limit(self) -> float:
+        """How far an actor may go this turn: the end, or the next discrete actor's time."""
+        return min([self.until, *(a.time for a in self._bounds if not a.finished)])
 
     def add(self, actor: Actor) -> None:
         """Queue ``actor`` at its time (again, after a rollback moved it back)."""
+        if actor.bounds and all(a is not actor for a in self._bounds):
+            self._bounds.append(actor)
         if not actor.finished:
             ticket = next(self._order)
             self._latest[id(actor)] = ticket
@@ -70,7 +80,7 @@ class Kernel:
                 _, _, ticket, actor = heapq.heappop(self._heap)
                 if ticket != self._latest.get(id(actor)) or actor.finished:
                     continue  # superseded (a rollback queued it again), or already done
-                actor.act(self.until)
+                actor.act(self.limit())
                 self.add(actor)
             again = list(settle()) if settle is not None else []
             if not again:

@@ -112,12 +112,13 @@ class ControllerLoop(Actor):
     def act(self, limit: float) -> None:
         """Steps until ``limit`` (a step that would pass it lands on it)."""
         if self._clock is None:
-            self._start()
+            self.start()
         while self.t < limit:
             event = _next_landing(self.events, self.t, self.until)
             self._attempt(min(event, limit), event)
 
-    def _start(self) -> None:
+    def start(self) -> None:
+        """Initialize the sub-models and record the first point."""
         t = self.t0
         self._clock = _Clock(t)
         y0 = self.runner.initialize(t)
@@ -159,6 +160,18 @@ class ControllerLoop(Actor):
             sink.add_point(len(self.steps), t, attempt.y)
         if self.bar is not None:
             self.bar.update(h)
+
+    def last(self) -> np.ndarray:
+        """The outputs at the current time."""
+        return self.ctx.rows[-1]
+
+    def jump(self, columns: slice, values: np.ndarray) -> None:
+        """Some outputs jumped at the current time (an event): the point now holds the new
+        values, and extrapolation starts again from it (a jump is not a trend)."""
+        self.ctx.rows[-1] = self.ctx.rows[-1].copy()
+        self.ctx.rows[-1][columns] = values
+        self.controller.event(self.t)
+        self.ctx.restart()
 
     def _failed_trial(self, exc: SubModelError, t: float, h: float) -> Attempt:
         """A trial step a sub-model could not take (it raised, or returned NaN or inf) is a
@@ -260,7 +273,8 @@ class FixedLoop(Actor):
         else:
             self._run_to(limit)
 
-    def _start(self) -> None:
+    def start(self) -> None:
+        """Initialize the sub-models and record the first point."""
         t = self.t0
         y0 = self.runner.initialize(t)
         self.times[0], self.table[0], self.n = t, y0, 0
@@ -270,7 +284,7 @@ class FixedLoop(Actor):
 
     def _run_to(self, limit: float) -> None:
         if self._state is None:
-            self._start()
+            self.start()
         runner, until, events, lean = self.runner, self.until, self.events, self.lean
         # An extrapolating kernel needs `order` equal steps before the step in its segment: the
         # general step does the first `order` steps of each segment (where it lowers the order
@@ -318,6 +332,19 @@ class FixedLoop(Actor):
             if n == due:
                 due = n + self._publish()
         self._state = (clock, carry, segment, due)
+
+    def last(self) -> np.ndarray:
+        """The outputs at the current time."""
+        return self.table[self.n]
+
+    def jump(self, columns: slice, values: np.ndarray) -> None:
+        """Some outputs jumped at the current time (an event): the point now holds the new
+        values, and extrapolation starts again from it."""
+        assert self._state is not None
+        self.table[self.n, columns] = values
+        clock, carry, _, due = self._state
+        self._state = (clock, carry, self.n, due)
+        self.runner.restart()
 
     def _publish(self) -> int:
         """Hand the points not yet stored to the store, and the steps to the progress bar;

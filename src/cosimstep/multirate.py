@@ -38,6 +38,7 @@ import numpy as np
 
 from cosimstep.controllers.base import StepPolicy
 from cosimstep.errors import SubModelError
+from cosimstep.events import DiscreteEventModel
 from cosimstep.extrapolation import evaluate, taylor_coefficients
 from cosimstep.kernel import Actor, Kernel
 from cosimstep.masters import Master, MasterOptions
@@ -741,6 +742,8 @@ def refusals(models: dict[str, Any], interpolation: str | None = None, *,
                 if state and not m.capabilities.can_save_state]
     problems += [f"'{n}' has direct feedthrough" for n, m in models.items()
                  if m.capabilities.has_direct_feedthrough]
+    problems += [f"'{n}' is a discrete-event sub-model (not yet supported by multirate)"
+                 for n, m in models.items() if isinstance(m, DiscreteEventModel)]
     if interpolation == "hermite":
         problems += [f"'{n}' gives no output derivatives (needed by 'hermite')"
                      for n, m in models.items() if not m.capabilities.provides_derivatives]

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from cosimstep.events import Event
 from cosimstep.reference import ErrorReport
 
 
@@ -64,6 +65,8 @@ class SimulationResult:
     for controllers without error control. Compare with ``error.max_scaled``."""
     estimate_calls: int = 0
     """Calls the estimate cost (the looser run of ``estimate="rerun"``), not in ``calls``."""
+    events: list[Event] = field(default_factory=list)
+    """The events of discrete-event sub-models, in time order (:mod:`cosimstep.events`)."""
 
     @property
     def success(self) -> bool:
@@ -97,6 +100,7 @@ class SimulationResult:
             "master_overhead_s": max(self.wall_s - sum(self.time_in_models.values()), 0.0),
             "store": self.store,
         }
+        out["events"] = [e.to_dict() for e in self.events]
         out["error_estimate"] = self.error_estimate
         out["error_estimate_calls"] = self.estimate_calls
         if self.error is not None:

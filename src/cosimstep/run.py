@@ -17,7 +17,7 @@ import sys
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,7 @@ import numpy as np
 
 from cosimstep.controllers import Controller, Fixed
 from cosimstep.errors import StepSizeError, SubModelError
+from cosimstep.events import DiscreteEventModel, Event
 from cosimstep.kernel import Actor, Kernel
 from cosimstep.loops import ControllerLoop, FixedLoop
 from cosimstep.masters import Master, MasterOptions
@@ -47,6 +48,7 @@ class Outcome:
     accepted: int
     rejected: int
     error_estimate: float | None
+    events: list[Event] = field(default_factory=list)
 
 
 class Scheme(ABC):
@@ -92,6 +94,7 @@ class Synchronous(Scheme):
         self.controller, self.master, self.events = controller, master, events
         self.runner = Master(compiled, master)
         self.loop: FixedLoop | ControllerLoop | None = None
+        self.fired: list[Event] = []
 
     @property
     def t(self) -> float:
@@ -106,7 +109,25 @@ class Synchronous(Scheme):
         else:
             self.loop = ControllerLoop(self.runner, self.controller, self.t0, self.until,
                                        self.events, sink, bar)
-        return [self.loop]
+        discrete = [_EventActor(self, k) for k, m in enumerate(self.compiled.models)
+                    if isinstance(m, DiscreteEventModel)]
+        if discrete:
+            self.loop.start()  # the event models tell their first time once initialized
+        return [self.loop, *discrete]
+
+    def fire(self, k: int, t: float) -> None:
+        """Discrete-event sub-model ``k`` has its event now (the loop stands at ``t``): it
+        reads its inputs there, its outputs jump, the loop goes on from the new values."""
+        assert self.loop is not None
+        compiled = self.compiled
+        model = compiled.models[k]
+        y = self.loop.last()
+        inputs = compiled.a[k] * y[compiled.src[k]] + compiled.b[k]
+        kind = model.apply(t, inputs)
+        new = np.asarray(model.get_outputs(), dtype=float)
+        self.loop.jump(compiled.output_slices[k], new)
+        self.fired.append(Event(t, compiled.names[k], kind,
+                                {p.name: float(v) for p, v in zip(model.outputs, new)}))
 
     def close(self) -> None:
         try:
@@ -127,7 +148,8 @@ class Synchronous(Scheme):
             float(self.loop.t), times, values, steps, models,
             {n: int(c) for n, c in zip(compiled.names, runner.calls)},
             {n: float(s) for n, s in zip(compiled.names, runner.time_in_models)},
-            len(steps), rejected, getattr(self.controller, "error_estimate", None))
+            len(steps), rejected, getattr(self.controller, "error_estimate", None),
+            list(self.fired))
 
     def error(self, reference: Reference, out: Outcome,
               names: list[str]) -> tuple[ErrorReport, np.ndarray]:
@@ -248,6 +270,35 @@ class MultiRate(Scheme):
                                 np.array(tr.rows).reshape(len(tr.times), -1))
 
 
+class _EventActor(Actor):
+    """A discrete-event sub-model as an actor of the kernel: it stands at its next event, and
+    no other actor steps past that time (``bounds``); at equal times it acts first."""
+
+    rank, bounds = -1, True
+
+    def __init__(self, scheme: Synchronous, k: int) -> None:
+        self.scheme, self.k = scheme, k
+        self.model: DiscreteEventModel = scheme.compiled.models[k]
+        self.name = scheme.compiled.names[k]
+        self._after = scheme.t0  # the time of its last event (or the start)
+
+    @property
+    def time(self) -> float:
+        return self.model.next_event(self._after)
+
+    @property
+    def finished(self) -> bool:
+        return not self.time < self.scheme.until
+
+    def act(self, limit: float) -> None:
+        t = self.time
+        self.scheme.fire(self.k, t)
+        if not self.model.next_event(t) > t:
+            raise RuntimeError(f"discrete-event sub-model '{self.name}' scheduled its next "
+                               f"event at {self.model.next_event(t):.9g}, not after t = {t:.9g}")
+        self._after = t
+
+
 def scheme_for(compiled: Any, t0: float, until: float, controller: Controller,
                master: MasterOptions, events: list[float]) -> Scheme:
     """The coupling scheme of a run, chosen once."""
@@ -333,7 +384,8 @@ class Run:
             steps_accepted=out.accepted, steps_rejected=out.rejected, step_sizes=out.steps,
             wall_s=wall, time_in_models=out.time_in_models,
             store=str(self.store) if self.store is not None else None, error=err,
-            reference=ref_values, models=out.models, error_estimate=out.error_estimate)
+            reference=ref_values, models=out.models, error_estimate=out.error_estimate,
+            events=out.events)
 
 
 def _progress(progress: bool | None, t0: float, until: float) -> Any:

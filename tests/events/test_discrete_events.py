@@ -1,0 +1,127 @@
+"""Discrete-event sub-models on the run kernel: steps land on their events, the outputs jump
+there, extrapolation restarts, and failure times follow their law."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import cosimstep as cs
+from cosimstep.events import FailureModel, Timetable
+from helpers import Integrator
+
+CONTROLLERS = {
+    "fixed": lambda: cs.Fixed(0.1),
+    "pc": lambda: cs.make_controller("pc", None, 1e-6),
+}
+
+
+def _timetable_system() -> cs.System:
+    # u = 0 until 0.25, 1 until 0.7, then 3: x = ∫u is 1.35 at t = 1, exactly, if the steps
+    # land on both events and nothing is extrapolated across them (0.25, 0.7 are off the grid)
+    system = cs.System()
+    system.add("tt", Timetable([0.25, 0.7], [[1.0], [3.0]], outputs=["u"]))
+    system.add("int", Integrator())
+    system.connect("tt.u", "int.u")
+    return system
+
+
+@pytest.mark.parametrize("master", ["gauss-seidel", "jacobi"])
+@pytest.mark.parametrize("controller", sorted(CONTROLLERS))
+def test_steps_land_on_the_events_and_nothing_is_extrapolated_across(controller, master):
+    result = cs.simulate(_timetable_system(), 1.0, CONTROLLERS[controller](),
+                         cs.MasterOptions(master, 2))
+    assert result.success, result.message
+    assert abs(result["int.x"][-1] - 1.35) < 1e-12
+    assert 0.25 in result.times and 0.7 in result.times
+    assert [(e.t, e.source, e.kind, e.payload) for e in result.events] == [
+        (0.25, "tt", "timetable", {"u": 1.0}), (0.7, "tt", "timetable", {"u": 3.0})]
+    summary = result.summary()["events"]
+    assert summary[1] == {"t": 0.7, "source": "tt", "kind": "timetable", "payload": {"u": 3.0}}
+
+
+def test_fixed_step_call_count_with_events():
+    # the step ends on each event and the grid goes on from there in steps of 0.1:
+    # 0.1, 0.2, 0.25 | 0.35 ... 0.65, 0.7 | 0.8, 0.9, 1.0 -> 3 + 5 + 3 = 11 calls per sub-model
+    result = cs.simulate(_timetable_system(), 1.0, cs.Fixed(0.1), cs.MasterOptions("jacobi", 0))
+    assert result.calls == {"tt": 11, "int": 11}
+    assert np.allclose(result.times, [0, 0.1, 0.2, 0.25, 0.35, 0.45, 0.55, 0.65, 0.7, 0.8, 0.9,
+                                      1.0], rtol=0, atol=1e-12)
+
+
+def test_a_failure_stops_what_it_feeds():
+    # a pump that delivers 1 while it works: the volume pumped is the failure time
+    failure = FailureModel("weibull", scale=2.0, shape=1.5, seed=7)
+    system = cs.System()
+    system.add("pump", failure)
+    system.add("tank", Integrator())
+    system.connect("pump.ok", "tank.u")
+    result = cs.simulate(system, 10.0, cs.make_controller("pc", None, 1e-8),
+                         cs.MasterOptions("gauss-seidel", 2))
+    assert result.success, result.message
+    (event,) = result.events
+    assert event.kind == "failure" and event.payload == {"ok": 0.0}
+    assert 0.0 < event.t < 10.0
+    assert abs(result["tank.x"][-1] - event.t) < 1e-9
+
+
+def test_the_same_seed_gives_the_same_failures_and_repairs_alternate():
+    def run(seed: int) -> list[tuple[float, str]]:
+        system = cs.System()
+        system.add("c", FailureModel("exponential", scale=1.0, seed=seed, repair=0.5))
+        system.add("int", Integrator())
+        system.connect("c.ok", "int.u")
+        result = cs.simulate(system, 10.0, cs.Fixed(0.05))
+        return [(e.t, e.kind) for e in result.events]
+
+    first = run(3)
+    assert first == run(3) and first != run(4)
+    kinds = [k for _, k in first]
+    assert len(kinds) >= 4 and kinds[::2] == ["failure"] * len(kinds[::2]) \
+        and kinds[1::2] == ["repair"] * len(kinds[1::2])
+    times = [t for t, _ in first]
+    assert all(abs((b - a) - 0.5) < 1e-12 for a, b in zip(times[::2], times[1::2]))
+
+
+@pytest.mark.parametrize(("law", "shape"), [("weibull", 1.7), ("exponential", 1.0)])
+def test_1000_seeded_lifetimes_follow_the_law(law, shape):
+    times = []
+    for seed in range(1000):
+        model = FailureModel(law, scale=3.0, shape=shape, seed=seed)
+        model.initialize(0.0)
+        times.append(model.next_event(0.0))
+    dist = stats.weibull_min(shape, scale=3.0) if law == "weibull" else stats.expon(scale=3.0)
+    assert stats.kstest(times, dist.cdf).pvalue > 0.01
+
+
+def test_bad_settings_are_listed_at_once():
+    with pytest.raises(ValueError) as info:
+        FailureModel("gamma", scale=0.0, shape=-1.0, repair=math.nan)
+    message = str(info.value)
+    for part in ("law 'gamma'", "scale must be a positive number", "shape must be",
+                 "repair must be"):
+        assert part in message
+    with pytest.raises(ValueError, match="times must increase"):
+        Timetable([1.0, 0.5], [[1.0], [2.0]])
+
+
+def test_multirate_refuses_discrete_event_models():
+    with pytest.raises(ValueError, match="'tt' is a discrete-event sub-model"):
+        cs.simulate(_timetable_system(), 1.0, cs.make_controller("pc", None, 1e-4),
+                    cs.MasterOptions("multirate", 2))
+
+
+def test_a_rejected_step_restores_the_generator():
+    model = FailureModel("exponential", scale=1.0, seed=1, repair=0.1)
+    model.initialize(0.0)
+    token = model.save_state()
+    model.apply(model.next_event(0.0), np.zeros(0))
+    model.apply(model.next_event(0.0), np.zeros(0))  # repaired: draws a new lifetime
+    after = model.next_event(0.0)
+    model.restore_state(token)
+    model.apply(model.next_event(0.0), np.zeros(0))
+    model.apply(model.next_event(0.0), np.zeros(0))
+    assert model.next_event(0.0) == after
