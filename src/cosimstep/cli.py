@@ -315,7 +315,10 @@ def export(kind: str, output: str, params: tuple[str, ...], starts: tuple[str, .
 @main.command("models")
 def list_models() -> None:
     """List the built-in sub-model types."""
+    from cosimstep.events import KINDS
     from cosimstep.models import REGISTRY
 
-    for name, kind in sorted(REGISTRY.items()):
-        click.echo(f"{name:28s} {kind.description}")
+    rows = {name: kind.description for name, kind in REGISTRY.items()}
+    rows.update({name: f"discrete events: {text}" for name, (_, text) in KINDS.items()})
+    for name, description in sorted(rows.items()):
+        click.echo(f"{name:28s} {description}")

@@ -25,6 +25,7 @@ from pydantic import Field
 
 from cosimstep.adapters.ode import ParameterSchedule, make_solver
 from cosimstep.errors import ConfigurationError, Problem
+from cosimstep.events import KINDS as EVENT_KINDS
 from cosimstep.models import REGISTRY
 from cosimstep.spec import (
     Changes,
@@ -157,14 +158,17 @@ def _build_model(name: str, sec: ModelSection, header: HeaderSection,
         return _python_model(sec, base_dir, where, problems)
     if sec.type == "fmu":
         return _fmu_model(name, sec, header, base_dir, where, problems, used)
+    if sec.type in EVENT_KINDS:
+        return _event_model(sec, where, problems)
     for key, given in (("path", sec.path), ("recipe", sec.recipe)):
         if given is not None:
             problems.append(Problem(f"{where}.{key}", f"only used by type 'fmu', not "
                                     f"'{sec.type}'", "remove it or write type = 'fmu'"))
     kind = REGISTRY.get(sec.type)
     if kind is None:
+        known = sorted([*REGISTRY, *EVENT_KINDS])
         problems.append(Problem(f"{where}.type", f"unknown model type '{sec.type}'",
-                                f"use 'python', 'fmu' or one of: {', '.join(sorted(REGISTRY))}"))
+                                f"use 'python', 'fmu' or one of: {', '.join(known)}"))
         return None
     if not _builtin_values_ok(sec, kind, where, problems):
         return None
@@ -222,6 +226,25 @@ def _fmu_model(name: str, sec: ModelSection, header: HeaderSection, base_dir: Pa
     # `solver` is for model-exchange FMUs (integrated by cosimstep); fmu_submodel checks it
     return fmu_submodel(name, fmu, overrides, where, problems, shared=header.parameters,
                         used=used, solver=sec.solver)
+
+
+def _event_model(sec: ModelSection, where: str, problems: list[Problem]) -> SubModel | None:
+    """A discrete-event kind (:mod:`cosimstep.events`) from its ``parameters`` table."""
+    cls, _ = EVENT_KINDS[sec.type]
+    for key, given in (("path", sec.path), ("recipe", sec.recipe), ("class", sec.class_),
+                       ("solver", sec.solver)):
+        if given is not None:
+            problems.append(Problem(f"{where}.{key}", f"not used by type '{sec.type}'",
+                                    "remove it"))
+    if sec.start:
+        problems.append(Problem(f"{where}.start", f"type '{sec.type}' has no start values",
+                                "give its outputs' first values as parameters"))
+    try:
+        return cls(**sec.parameters)
+    except (TypeError, ValueError) as exc:
+        problems.append(Problem(f"{where}.parameters", str(exc),
+                                f"see docs/system-files.md, type '{sec.type}'"))
+        return None
 
 
 def _python_model(sec: ModelSection, base_dir: Path, where: str,

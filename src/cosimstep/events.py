@@ -231,4 +231,13 @@ def timetable_problems(times: Sequence[float], values: Sequence[Sequence[float]]
     return problems
 
 
-__all__ = ["DiscreteEventModel", "Event", "FailureModel", "Timetable"]
+KINDS: dict[str, tuple[type[DiscreteEventModel], str]] = {
+    "failure": (FailureModel, "component failure: output ok = 1, then 0 after a lifetime "
+                "(law = 'exponential' | 'weibull', scale, shape, seed, repair)"),
+    "timetable": (Timetable, "outputs that change at listed times (times, values, outputs, "
+                  "start, units)"),
+}
+"""The discrete-event kinds a system file names with ``type``."""
+
+
+__all__ = ["KINDS", "DiscreteEventModel", "Event", "FailureModel", "Timetable"]

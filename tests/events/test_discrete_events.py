@@ -125,3 +125,28 @@ def test_a_rejected_step_restores_the_generator():
     model.apply(model.next_event(0.0), np.zeros(0))
     model.apply(model.next_event(0.0), np.zeros(0))
     assert model.next_event(0.0) == after
+
+
+def test_event_kinds_from_a_system_file(tmp_path):
+    from click.testing import CliRunner
+
+    from cosimstep.cli import main
+
+    file = tmp_path / "s.toml"
+    file.write_text(
+        'until = 10.0\n[models.pump]\ntype = "failure"\n'
+        'parameters = { law = "weibull", scale = 4.0, shape = 2.0, seed = 3 }\n'
+        '[models.tank]\ntype = "linear_coupled.slow"\n'
+        '[[connections]]\nfrom = "pump.ok"\nto = "tank.u"\n')
+    spec = cs.load_system(file)
+    result = cs.simulate(spec.system, spec.until, cs.make_controller("pc", None, 1e-6))
+    (event,) = result.events
+    assert event.source == "pump" and event.kind == "failure"
+    file.write_text(file.read_text().replace('law = "weibull", scale = 4.0',
+                                             'law = "gamma", scale = -4.0')
+                    + '[models.times]\ntype = "timetable"\n'
+                      'parameters = { times = [2.0, 1.0], values = [[1.0], [2.0]] }\n')
+    res = CliRunner().invoke(main, ["run", str(file)])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert "law 'gamma'" in res.output and "scale must be a positive number" in res.output
+    assert "times must increase" in res.output  # every problem at once
