@@ -13,7 +13,9 @@ Shipped kinds:
 - :class:`FailureModel`: a component that fails after a lifetime drawn from an exponential or
   Weibull law (:mod:`scipy.stats`), seeded so that every run is reproducible, and is optionally
   repaired after a fixed repair time (then a new lifetime starts);
-- :class:`Timetable`: outputs that change at listed times.
+- :class:`Timetable`: outputs that change at listed times;
+- :class:`ThresholdMonitor`: fires when a continuous input crosses a level, with hysteresis — a
+  *state event* (:meth:`DiscreteEventModel.indicator`), located by rollback and bracketing.
 """
 
 from __future__ import annotations
@@ -65,6 +67,12 @@ class DiscreteEventModel(SubModel):
     def fire(self, t: float, inputs: np.ndarray) -> tuple[np.ndarray, str]:
         """The event at ``t``: the new outputs and a short name of what happened."""
         raise NotImplementedError
+
+    def indicator(self, inputs: np.ndarray) -> float | None:
+        """A *state event*: a function of the inputs whose crossing of zero (from below) is the
+        event; ``None`` for models whose events are all scheduled (:meth:`next_event`). The
+        master locates the crossing inside a step (:mod:`cosimstep.loops`) and fires there."""
+        return None
 
     def initialize(self, t0: float) -> None:
         self._y = np.array([p.start or 0.0 for p in self.outputs], dtype=float)
@@ -216,6 +224,40 @@ class Timetable(DiscreteEventModel):
         self._i = state
 
 
+class ThresholdMonitor(DiscreteEventModel):
+    """Output ``alarm`` turns 1 when input ``x`` rises to ``level`` and back to 0 when it falls
+    below ``level - hysteresis``: a state event, located inside the step where it happens."""
+
+    kind = "threshold"
+
+    def __init__(self, level: float = 0.0, hysteresis: float = 0.0, unit: str = "1") -> None:
+        problems = []
+        for name, value in (("level", level), ("hysteresis", hysteresis)):
+            if isinstance(value, bool) or not isinstance(value, int | float) \
+                    or not math.isfinite(value):
+                problems.append(f"{name} must be a finite number, got {value!r}")
+        if not problems and hysteresis < 0:
+            problems.append(f"hysteresis must be >= 0, got {hysteresis!r}")
+        if problems:
+            raise ValueError("; ".join(problems))
+        self.level, self.hysteresis = float(level), float(hysteresis)
+        self.inputs = (Port("x", unit, 0.0, "the watched signal"),)
+        self.outputs = (Port("alarm", "1", 0.0, "1 after x reached level"),)
+        super().__init__()
+
+    def indicator(self, inputs: np.ndarray) -> float | None:
+        x = float(inputs[0])
+        return x - self.level if self._y[0] < 0.5 else (self.level - self.hysteresis) - x
+
+    def next_event(self, t: float) -> float:
+        return math.inf  # only state events
+
+    def fire(self, t: float, inputs: np.ndarray) -> tuple[np.ndarray, str]:
+        if self._y[0] < 0.5:
+            return np.array([1.0]), "rise"
+        return np.array([0.0]), "fall"
+
+
 def timetable_problems(times: Sequence[float], values: Sequence[Sequence[float]],
                        outputs: Sequence[str], start: Sequence[float] | None) -> list[str]:
     """What is wrong with a timetable's settings (empty: nothing)."""
@@ -236,8 +278,11 @@ KINDS: dict[str, tuple[type[DiscreteEventModel], str]] = {
                 "(law = 'exponential' | 'weibull', scale, shape, seed, repair)"),
     "timetable": (Timetable, "outputs that change at listed times (times, values, outputs, "
                   "start, units)"),
+    "threshold": (ThresholdMonitor, "alarm = 1 when input x reaches level, 0 below level - "
+                  "hysteresis (a state event)"),
 }
 """The discrete-event kinds a system file names with ``type``."""
 
 
-__all__ = ["KINDS", "DiscreteEventModel", "Event", "FailureModel", "Timetable"]
+__all__ = ["KINDS", "DiscreteEventModel", "Event", "FailureModel", "ThresholdMonitor",
+           "Timetable"]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import bisect
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -25,6 +26,10 @@ from cosimstep.store import Store
 
 HISTORY_ROWS = 4  # stored points handed to controllers/masters for extrapolation
 FAILED_TRIAL_SHRINK = 0.25  # step factor after a trial step a sub-model failed on
+EVENT_TOL = 1e-12
+"""A state event is located to within ``EVENT_TOL · max(1, |t|)`` seconds of the crossing of the
+trajectory the master computes (the step that ends on it is then taken again, by the
+controller)."""
 
 
 class _Context:
@@ -98,6 +103,12 @@ class ControllerLoop(Actor):
         self.rejected = 0
         self.failed_trials = 0  # rejected because a sub-model failed on the trial step
         self._clock: _Clock | None = None  # set by the first turn
+        # state events (see _crossing_inside): watch(row) is the largest indicator of the
+        # state-event sub-models (an event when it reaches 0 from below), fire(t) fires them
+        self.watch: Callable[[np.ndarray], float] | None = None
+        self.fire: Callable[[float], None] | None = None
+        self.located = 0  # state events located inside a step
+        self._located = math.nan  # the time a located crossing lands on
         self._h = 0.0  # the step the controller proposed last
         self._hmax = math.inf
 
@@ -146,6 +157,9 @@ class ControllerLoop(Actor):
         if not attempt.accepted:
             self.rejected += 1
             return
+        if self.watch is not None and self._crossing_inside(t, h, attempt.y):
+            return  # back at t; the next attempt ends on the crossing
+        located = t + h == self._located
         clock = self._clock
         clock.add(h)
         t = self.t = landing if abs(clock.value - landing) <= 1e-9 * h else clock.value
@@ -160,6 +174,50 @@ class ControllerLoop(Actor):
             sink.add_point(len(self.steps), t, attempt.y)
         if self.bar is not None:
             self.bar.update(h)
+        if self.watch is not None and (located or self.watch(attempt.y) >= 0.0):
+            self._located = math.nan
+            self.fire(self.t)  # type: ignore[misc]
+
+    def _crossing_inside(self, t: float, h: float, y: np.ndarray) -> bool:
+        """Whether an accepted step crossed a state event and was undone to be redone up to the
+        crossing, located to :data:`EVENT_TOL` by :meth:`_locate`.
+
+        Without a saved state (a controller that never rolls back, e.g. a fixed step) the
+        event fires at the end of the step instead: late by up to one step.
+        """
+        watch, token = self.watch, self.ctx.first_token
+        assert watch is not None
+        if t + h == self._located or watch(y) < 0.0 or watch(self.ctx.rows[-1]) >= 0.0:
+            return False  # the located landing itself, no crossing, or one already under way
+        if token is None or h <= EVENT_TOL * max(1.0, abs(t)):
+            return False
+        b = self._locate(t, h, token, watch(self.ctx.rows[-1]), watch(y))
+        self.ctx.restore(token)
+        self._h, self._located = b, t + b
+        self.located += 1
+        return True
+
+    def _locate(self, t: float, h: float, token: Any, g0: float, g1: float) -> float:
+        """The step from ``t`` at whose end the largest indicator reaches 0, within
+        :data:`EVENT_TOL`: the Illinois variant of regula falsi on the step length, every third
+        trial a bisection (each trial is one master step from the saved state at ``t``)."""
+        assert self.watch is not None
+        a, b, ga, gb, side = 0.0, h, g0, g1, 0
+        tol = EVENT_TOL * max(1.0, abs(t))
+        for i in range(200):
+            if b - a <= tol:
+                break
+            c = 0.5 * (a + b) if i % 3 == 2 else b - gb * (b - a) / (gb - ga)
+            c = min(max(c, a + 0.25 * tol), b - 0.25 * tol)
+            self.ctx.restore(token)
+            gc = self.watch(self.ctx.step(t, c))
+            if gc >= 0.0:
+                b, gb = c, gc
+                ga, side = (0.5 * ga if side == 1 else ga), 1
+            else:
+                a, ga = c, gc
+                gb, side = (0.5 * gb if side == -1 else gb), -1
+        return b
 
     def last(self) -> np.ndarray:
         """The outputs at the current time."""

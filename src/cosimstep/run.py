@@ -95,6 +95,9 @@ class Synchronous(Scheme):
         self.runner = Master(compiled, master)
         self.loop: FixedLoop | ControllerLoop | None = None
         self.fired: list[Event] = []
+        self.state_events = [k for k, m in enumerate(compiled.models)
+                             if isinstance(m, DiscreteEventModel)
+                             and type(m).indicator is not DiscreteEventModel.indicator]
 
     @property
     def t(self) -> float:
@@ -103,17 +106,40 @@ class Synchronous(Scheme):
     def actors(self, kernel: Kernel, sink: Store | None, bar: Any) -> list[Actor]:
         # The fixed step needs no controller, context or attempt per step: a lean loop gives
         # the same run (a subclass of Fixed may change attempt(), so only Fixed qualifies).
-        if type(self.controller) is Fixed:
+        if type(self.controller) is Fixed and not self.state_events:
             self.loop = FixedLoop(self.runner, self.controller.step, self.t0, self.until,
                                   self.events, sink, bar, self.master.call_timeout)
         else:
             self.loop = ControllerLoop(self.runner, self.controller, self.t0, self.until,
                                        self.events, sink, bar)
+        if self.state_events and isinstance(self.loop, ControllerLoop):
+            self.loop.watch, self.loop.fire = self._watch, self._fire_crossed
         discrete = [_EventActor(self, k) for k, m in enumerate(self.compiled.models)
                     if isinstance(m, DiscreteEventModel)]
         if discrete:
             self.loop.start()  # the event models tell their first time once initialized
         return [self.loop, *discrete]
+
+    def _inputs(self, k: int, row: np.ndarray) -> np.ndarray:
+        compiled = self.compiled
+        return compiled.a[k] * row[compiled.src[k]] + compiled.b[k]
+
+    def _watch(self, row: np.ndarray) -> float:
+        """The largest state-event indicator at a point (an event where it reaches 0)."""
+        models = self.compiled.models
+        return max(models[k].indicator(self._inputs(k, row)) for k in self.state_events)
+
+    def _fire_crossed(self, t: float) -> None:
+        """Fire the state-event sub-models whose indicator reached 0 at ``t`` (the one located
+        there fires even if rounding left it a hair below)."""
+        assert self.loop is not None
+        row = self.loop.last()
+        values = {k: self.compiled.models[k].indicator(self._inputs(k, row))
+                  for k in self.state_events}
+        top = max(values.values())
+        for k, g in values.items():
+            if g >= 0.0 or g == top:
+                self.fire(k, t)
 
     def fire(self, k: int, t: float) -> None:
         """Discrete-event sub-model ``k`` has its event now (the loop stands at ``t``): it
@@ -122,8 +148,7 @@ class Synchronous(Scheme):
         compiled = self.compiled
         model = compiled.models[k]
         y = self.loop.last()
-        inputs = compiled.a[k] * y[compiled.src[k]] + compiled.b[k]
-        kind = model.apply(t, inputs)
+        kind = model.apply(t, self._inputs(k, y))
         new = np.asarray(model.get_outputs(), dtype=float)
         self.loop.jump(compiled.output_slices[k], new)
         self.fired.append(Event(t, compiled.names[k], kind,

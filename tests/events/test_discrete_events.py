@@ -10,7 +10,7 @@ import pytest
 from scipy import stats
 
 import cosimstep as cs
-from cosimstep.events import FailureModel, Timetable
+from cosimstep.events import FailureModel, ThresholdMonitor, Timetable
 from helpers import Integrator
 
 CONTROLLERS = {
@@ -150,3 +150,38 @@ def test_event_kinds_from_a_system_file(tmp_path):
     assert res.exit_code == 2 and "Traceback" not in res.output
     assert "law 'gamma'" in res.output and "scale must be a positive number" in res.output
     assert "times must increase" in res.output  # every problem at once
+
+
+def _monitored(level: float, hysteresis: float) -> cs.System:
+    # x rises at 1/s until t = 1, then falls at 1/s; the alarm drives an integrator z
+    system = cs.System()
+    system.add("slope", Timetable([1.0], [[-1.0]], outputs=["u"], start=[1.0]))
+    system.add("x", Integrator())
+    system.add("mon", ThresholdMonitor(level=level, hysteresis=hysteresis))
+    system.add("z", Integrator())
+    system.connect("slope.u", "x.u")
+    system.connect("x.x", "mon.x")
+    system.connect("mon.alarm", "z.u")
+    return system
+
+
+def test_a_state_event_is_located_inside_the_step():
+    result = cs.simulate(_monitored(0.5, 0.2), 2.0, cs.make_controller("pc", None, 1e-6),
+                         cs.MasterOptions("gauss-seidel", 2))
+    assert result.success, result.message
+    crossings = [(e.t, e.kind) for e in result.events if e.source == "mon"]
+    assert [k for _, k in crossings] == ["rise", "fall"]
+    # x = t up to 1, then 2 - t: the alarm rises at x = 0.5 and falls below 0.5 - 0.2 at 1.7
+    assert abs(crossings[0][0] - 0.5) < 1e-10 and abs(crossings[1][0] - 1.7) < 1e-10
+    assert abs(result["z.x"][-1] - 1.2) < 1e-9  # the alarm was on from 0.5 to 1.7
+
+
+def test_without_rollback_a_state_event_fires_late_by_at_most_a_step():
+    h = 0.15
+    result = cs.simulate(_monitored(0.5, 0.2), 2.0, cs.Fixed(h),
+                         cs.MasterOptions("gauss-seidel", 2))
+    crossings = [e.t for e in result.events if e.source == "mon"]
+    assert len(crossings) == 2
+    delays = [crossings[0] - 0.5, crossings[1] - 1.7]
+    assert all(0.0 <= d < h for d in delays), delays
+    assert abs(result["z.x"][-1] - (1.2 - delays[0] + delays[1])) < 1e-9
