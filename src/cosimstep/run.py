@@ -33,6 +33,9 @@ from cosimstep.reference import ErrorReport, Reference, error_report
 from cosimstep.result import ModelStats, SimulationResult
 from cosimstep.store import Store
 
+MAX_EVENTS = 100
+"""Events at one time after which a run ends failed: sub-models that keep firing each other."""
+
 
 @dataclass
 class Outcome:
@@ -95,6 +98,7 @@ class Synchronous(Scheme):
         self.runner = Master(compiled, master)
         self.loop: FixedLoop | ControllerLoop | None = None
         self.fired: list[Event] = []
+        self.max_events = MAX_EVENTS
         self.state_events = [k for k, m in enumerate(compiled.models)
                              if isinstance(m, DiscreteEventModel)
                              and type(m).indicator is not DiscreteEventModel.indicator]
@@ -131,15 +135,32 @@ class Synchronous(Scheme):
 
     def _fire_crossed(self, t: float) -> None:
         """Fire the state-event sub-models whose indicator reached 0 at ``t`` (the one located
-        there fires even if rounding left it a hair below)."""
+        there fires even if rounding left it a hair below), then those that the new outputs
+        push past 0 at the same time — at most :attr:`max_events` in all, then the run fails
+        naming the sub-models still firing (an endless event loop)."""
+        assert self.loop is not None
+        values = self._indicators()
+        top = max(values.values())
+        due = [k for k, g in values.items() if g >= 0.0 or g == top]
+        fired = 0
+        while due:
+            fired += len(due)
+            if fired > self.max_events:
+                names = ", ".join(self.compiled.names[k] for k in due)
+                raise RuntimeError(f"more than {self.max_events} events at t = {t:.9g}: "
+                                   f"{names} keep firing each other (an endless event loop; "
+                                   "add hysteresis or break the cycle)")
+            for k in due:
+                self.fire(k, t)
+            # a jump may carry another indicator past 0 now: strictly, so that a monitor left
+            # exactly on its level (indicator 0 after firing) does not fire back at once
+            due = [k for k, g in self._indicators().items() if g > 0.0]
+
+    def _indicators(self) -> dict[int, float]:
         assert self.loop is not None
         row = self.loop.last()
-        values = {k: self.compiled.models[k].indicator(self._inputs(k, row))
-                  for k in self.state_events}
-        top = max(values.values())
-        for k, g in values.items():
-            if g >= 0.0 or g == top:
-                self.fire(k, t)
+        return {k: self.compiled.models[k].indicator(self._inputs(k, row))
+                for k in self.state_events}
 
     def fire(self, k: int, t: float) -> None:
         """Discrete-event sub-model ``k`` has its event now (the loop stands at ``t``): it

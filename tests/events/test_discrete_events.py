@@ -185,3 +185,20 @@ def test_without_rollback_a_state_event_fires_late_by_at_most_a_step():
     delays = [crossings[0] - 0.5, crossings[1] - 1.7]
     assert all(0.0 <= d < h for d in delays), delays
     assert abs(result["z.x"][-1] - (1.2 - delays[0] + delays[1])) < 1e-9
+
+
+def test_an_endless_event_loop_ends_the_run_and_names_the_models():
+    # a watches b's alarm, b watches 1 - a's alarm: each firing pushes the other past its level
+    # at the same time, forever
+    system = cs.System()
+    system.add("a", ThresholdMonitor(level=0.5))
+    system.add("b", ThresholdMonitor(level=0.5))
+    system.add("x", Integrator())
+    system.connect("b.alarm", "a.x")
+    system.connect("a.alarm", "b.x", gain=-1.0, offset=1.0)  # above 0.5 at the start
+    system.connect("a.alarm", "x.u")
+    result = cs.simulate(system, 1.0, cs.make_controller("pc", None, 1e-6))
+    assert result.status == "failed"
+    assert "more than 100 events" in result.message and "endless event loop" in result.message
+    assert "a" in result.message.split("events at")[1]
+    assert len(result.events) >= 100 and len(result.times) > 1  # what happened is kept
