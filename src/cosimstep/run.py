@@ -142,11 +142,12 @@ class Synchronous(Scheme):
         values = self._indicators()
         top = max(values.values())
         due = [k for k, g in values.items() if g >= 0.0 or g == top]
-        fired = 0
+        fired, involved = 0, set()
         while due:
             fired += len(due)
+            involved.update(due)
             if fired > self.max_events:
-                names = ", ".join(self.compiled.names[k] for k in due)
+                names = ", ".join(self.compiled.names[k] for k in sorted(involved))
                 raise RuntimeError(f"more than {self.max_events} events at t = {t:.9g}: "
                                    f"{names} keep firing each other (an endless event loop; "
                                    "add hysteresis or break the cycle)")

@@ -200,5 +200,5 @@ def test_an_endless_event_loop_ends_the_run_and_names_the_models():
     result = cs.simulate(system, 1.0, cs.make_controller("pc", None, 1e-6))
     assert result.status == "failed"
     assert "more than 100 events" in result.message and "endless event loop" in result.message
-    assert "a" in result.message.split("events at")[1]
+    assert "a, b keep firing each other" in result.message
     assert len(result.events) >= 100 and len(result.times) > 1  # what happened is kept
