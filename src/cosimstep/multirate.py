@@ -38,7 +38,7 @@ import numpy as np
 
 from cosimstep.controllers.base import StepPolicy
 from cosimstep.errors import SubModelError
-from cosimstep.events import DiscreteEventModel
+from cosimstep.events import DiscreteEventModel, Event
 from cosimstep.extrapolation import evaluate, taylor_coefficients
 from cosimstep.kernel import Actor, Kernel
 from cosimstep.masters import Master, MasterOptions
@@ -99,6 +99,7 @@ class Track:
     replaced: int = 0  # accepted steps later dropped (rollback) or re-run in more pieces, net
     states: dict[int, Any] = field(default_factory=dict)  # saved state at times[i], by i
     resync: tuple[int, float] = (0, -math.inf)  # (round, until): see MAX_RESYNC
+    discrete: bool = False  # a discrete-event sub-model: outputs held, changed only by fire()
     spent_out: float = 0.0  # Σ estimated errors its interpolated trajectory caused in consumers
     spent_in: float = 0.0  # Σ estimated errors from inputs its steps did not resolve
     steps: list[float] = field(default_factory=list)
@@ -154,8 +155,9 @@ class Multirate:
             for j in np.asarray(src, dtype=int):
                 if k not in self.consumers[self.owner[j]]:
                     self.consumers[self.owner[j]].append(k)
-        self.tracks = [Track(k, n, _copy_policy(policy), h0)
-                       for k, n in enumerate(system.names)]
+        self.tracks = [Track(k, n, _copy_policy(policy), h0,
+                             discrete=isinstance(m, DiscreteEventModel))
+                       for k, (n, m) in enumerate(zip(system.names, system.models))]
         self.events: list[float] = []
         self.until = math.inf
         self._requeue: list[int] = []  # sub-models rolled back since the kernel last saw them
@@ -184,6 +186,8 @@ class Multirate:
         col = j - self.system.output_slices[tr.index].start
         times = tr.times
         lo, hi = self._segment_bounds(float(at[0]) + 1e-12 * max(1.0, abs(float(at[0]))))
+        if tr.discrete:
+            return self._held(tr, col, at, hi), False
         first = bisect.bisect_left(times, lo - 1e-9 * max(1.0, abs(lo)))
         end = bisect.bisect_right(times, hi + 1e-9 * max(1.0, abs(hi)))
         beyond = bool(at[-1] > times[-1] + 1e-12 * max(1.0, abs(times[-1])))
@@ -212,6 +216,19 @@ class Multirate:
             return np.asarray(curve(at), dtype=float), False
         coef = taylor_coefficients(pts, vals[:, None], float(at[0]), len(pts) - 1)
         return np.array([evaluate(coef, float(s - at[0]))[0] for s in at]), beyond
+
+    @staticmethod
+    def _held(tr: Track, col: int, at: np.ndarray, hi: float) -> np.ndarray:
+        """A discrete-event sub-model's piecewise-constant output: the value of its latest point
+        at or before each time, the left limit at the end ``hi`` of the window's segment (its
+        jump there belongs to the next segment). Nothing to extrapolate: no sub-model steps
+        past its next event."""
+        times = tr.times
+        end = bisect.bisect_left(times, hi - 1e-9 * max(1.0, abs(hi))) + 1 \
+            if math.isfinite(hi) else len(times)
+        idx = [min(bisect.bisect_right(times, float(s) + 1e-12 * max(1.0, abs(float(s)))), end)
+               - 1 for s in at]
+        return np.array([tr.rows[max(i, 0)][col] for i in idx])
 
     def inputs_over(self, k: int, t: float, h: float) -> tuple[np.ndarray, bool]:
         """Model ``k``'s inputs at ``t + NODES·h`` (rows) and whether any were extrapolated."""
@@ -403,7 +420,10 @@ class Multirate:
         if i == 0:
             return 0
         event = self.events[i - 1]
-        return bisect.bisect_left(tr.times, event - 1e-9 * max(1.0, abs(event)))
+        first = bisect.bisect_left(tr.times, event - 1e-9 * max(1.0, abs(event)))
+        while first + 1 < len(tr.times) and tr.times[first + 1] == tr.times[first]:
+            first += 1  # a discrete-event track's point after its jump (the right limit)
+        return first
 
     def _rollback(self, k: int, t0: float, origin: int, rounds: int) -> bool:
         """Restore ``k`` to its last saved point at or before ``t0`` and drop what came after
@@ -544,7 +564,9 @@ class Multirate:
         if self.on_attempt is not None:
             self.on_attempt(tr.name, t, h, True)
         rounds = tr.resync[0] if t < tr.resync[1] else 0  # re-running a rolled-back stretch
-        tr.pending = (token, t, h, inputs, rounds, len(tr.times) - 1) if extrapolated else None
+        # a discrete-event track's outputs do not depend on its inputs between events
+        tr.pending = (token, t, h, inputs, rounds, len(tr.times) - 1) \
+            if extrapolated and not tr.discrete else None
         tr.states[len(tr.times) - 1] = token
         tr.times.append(landing if lands else t + h)
         tr.rows.append(y)
@@ -645,6 +667,31 @@ class Multirate:
             self.verify(k)
         return self._woken()
 
+    def fire(self, k: int, t: float) -> Event | None:
+        """Discrete-event sub-model ``k`` has its event at ``t``, where every sub-model stands
+        (no one steps past it). Pending steps are verified first; if that rolled anyone back,
+        nothing fires yet (``None``) and the rolled-back sub-models catch up again. Otherwise
+        the model fires with its inputs at ``t``, its track gets a second point at ``t`` (the
+        right limit) and ``t`` becomes a segment boundary for everyone: extrapolation restarts."""
+        woken = self.settle()
+        if woken:
+            for actor in woken:
+                self._kernel.wake(actor)
+            return None
+        tr, model = self.tracks[k], self.system.models[k]
+        row = np.concatenate([other.rows[-1] for other in self.tracks])
+        inputs = self.system.a[k] * row[self.system.src[k]] + self.system.b[k]
+        kind = model.apply(t, inputs)
+        new = np.asarray(model.get_outputs(), dtype=float)
+        tr.times.append(t)
+        tr.rows.append(new)
+        tr.states[len(tr.times) - 1] = self._guard(k, t, model.save_state)
+        if t not in self.events:
+            bisect.insort(self.events, t)
+        for other in self.tracks:
+            other.segment = len(other.times) - 1
+        return Event(t, tr.name, kind, {p.name: float(v) for p, v in zip(model.outputs, new)})
+
     def _woken(self) -> list[Actor]:
         """The actors of the sub-models rolled back since the last call."""
         woken = [self._steppers[k] for k in sorted(set(self._requeue))]
@@ -742,8 +789,9 @@ def refusals(models: dict[str, Any], interpolation: str | None = None, *,
                 if state and not m.capabilities.can_save_state]
     problems += [f"'{n}' has direct feedthrough" for n, m in models.items()
                  if m.capabilities.has_direct_feedthrough]
-    problems += [f"'{n}' is a discrete-event sub-model (not yet supported by multirate)"
-                 for n, m in models.items() if isinstance(m, DiscreteEventModel)]
+    problems += [f"'{n}' has state events (not yet supported by multirate)"
+                 for n, m in models.items() if isinstance(m, DiscreteEventModel)
+                 and type(m).indicator is not DiscreteEventModel.indicator]
     if interpolation == "hermite":
         problems += [f"'{n}' gives no output derivatives (needed by 'hermite')"
                      for n, m in models.items() if not m.capabilities.provides_derivatives]

@@ -163,7 +163,7 @@ class Synchronous(Scheme):
         return {k: self.compiled.models[k].indicator(self._inputs(k, row))
                 for k in self.state_events}
 
-    def fire(self, k: int, t: float) -> None:
+    def fire(self, k: int, t: float) -> bool:
         """Discrete-event sub-model ``k`` has its event now (the loop stands at ``t``): it
         reads its inputs there, its outputs jump, the loop goes on from the new values."""
         assert self.loop is not None
@@ -175,6 +175,7 @@ class Synchronous(Scheme):
         self.loop.jump(compiled.output_slices[k], new)
         self.fired.append(Event(t, compiled.names[k], kind,
                                 {p.name: float(v) for p, v in zip(model.outputs, new)}))
+        return True
 
     def close(self) -> None:
         try:
@@ -231,6 +232,7 @@ class MultiRate(Scheme):
                               call_timeout=master.call_timeout)
         self.events = events
         self._behind = t0
+        self.fired: list[Event] = []
 
     @property
     def t(self) -> float:
@@ -247,7 +249,16 @@ class MultiRate(Scheme):
             self._behind = t_min
 
         self.race.initialize(self.t0, self.until, self.events)
-        return self.race.actors(kernel, on_step if bar is not None else None)
+        discrete = [_EventActor(self, k) for k, m in enumerate(self.compiled.models)
+                    if isinstance(m, DiscreteEventModel)]
+        return [*self.race.actors(kernel, on_step if bar is not None else None), *discrete]
+
+    def fire(self, k: int, t: float) -> bool:
+        """See :meth:`cosimstep.multirate.Multirate.fire`; whether it fired."""
+        event = self.race.fire(k, t)
+        if event is not None:
+            self.fired.append(event)
+        return event is not None
 
     def settle(self) -> list[Actor]:
         return self.race.settle()
@@ -278,7 +289,7 @@ class MultiRate(Scheme):
                        {tr.name: tr.calls for tr in tracks},
                        {tr.name: tr.time_in_model for tr in tracks},
                        sum(tr.accepted for tr in tracks), sum(tr.rejected for tr in tracks),
-                       race.error_estimate())
+                       race.error_estimate(), list(self.fired))
 
     def error(self, reference: Reference, out: Outcome,
               names: list[str]) -> tuple[ErrorReport, np.ndarray]:
@@ -323,7 +334,7 @@ class _EventActor(Actor):
 
     rank, bounds = -1, True
 
-    def __init__(self, scheme: Synchronous, k: int) -> None:
+    def __init__(self, scheme: Synchronous | MultiRate, k: int) -> None:
         self.scheme, self.k = scheme, k
         self.model: DiscreteEventModel = scheme.compiled.models[k]
         self.name = scheme.compiled.names[k]
@@ -339,7 +350,8 @@ class _EventActor(Actor):
 
     def act(self, limit: float) -> None:
         t = self.time
-        self.scheme.fire(self.k, t)
+        if not self.scheme.fire(self.k, t):
+            return  # not yet: some sub-model was rolled back behind t and catches up first
         if not self.model.next_event(t) > t:
             raise RuntimeError(f"discrete-event sub-model '{self.name}' scheduled its next "
                                f"event at {self.model.next_event(t):.9g}, not after t = {t:.9g}")

@@ -108,9 +108,33 @@ def test_bad_settings_are_listed_at_once():
         Timetable([1.0, 0.5], [[1.0], [2.0]])
 
 
-def test_multirate_refuses_discrete_event_models():
-    with pytest.raises(ValueError, match="'tt' is a discrete-event sub-model"):
-        cs.simulate(_timetable_system(), 1.0, cs.make_controller("pc", None, 1e-4),
+@pytest.mark.parametrize("tol", [1e-4, 1e-8])
+def test_multirate_lands_every_sub_model_on_the_events(tol):
+    result = cs.simulate(_timetable_system(), 1.0, cs.make_controller("pc", None, tol),
+                         cs.MasterOptions("multirate", 2))
+    assert result.success, result.message
+    assert abs(result["int.x"][-1] - 1.35) < 1e-12
+    assert [(e.t, e.kind) for e in result.events] == [(0.25, "timetable"), (0.7, "timetable")]
+    own = result.models["tt"]
+    # the timetable's own points hold both sides of each jump: 0 then 1 at 0.25, 1 then 3 at 0.7
+    at = [own.values[i, 0] for i in np.flatnonzero(np.isin(own.times, [0.25, 0.7]))]
+    assert at == [0.0, 1.0, 1.0, 3.0]
+
+
+def test_multirate_failure_stops_what_it_feeds():
+    system = cs.System()
+    system.add("pump", FailureModel("weibull", scale=2.0, shape=1.5, seed=7))
+    system.add("tank", Integrator())
+    system.connect("pump.ok", "tank.u")
+    result = cs.simulate(system, 10.0, cs.make_controller("pc", None, 1e-8),
+                         cs.MasterOptions("multirate", 2))
+    (event,) = result.events
+    assert abs(result["tank.x"][-1] - event.t) < 1e-9
+
+
+def test_multirate_refuses_state_events():
+    with pytest.raises(ValueError, match="'mon' has state events"):
+        cs.simulate(_monitored(0.5, 0.2), 1.0, cs.make_controller("pc", None, 1e-4),
                     cs.MasterOptions("multirate", 2))
 
 
