@@ -197,10 +197,7 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
     db = sqlite3.connect(path)
     try:
         if run_id is None:
-            row = db.execute("SELECT MAX(id) FROM run").fetchone()
-            if row is None or row[0] is None:
-                raise LookupError(f"{path} holds no runs")
-            run_id = int(row[0])
+            run_id = _last_run_id(db, path)
         meta = db.execute("SELECT system, status, message, config_json, summary_json FROM run "
                           "WHERE id=?", (run_id,)).fetchone()
         if meta is None:
@@ -209,23 +206,11 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
                          (run_id,)).fetchall()
         times = np.array([r[0] for r in db.execute(
             "SELECT t FROM point WHERE run_id=? ORDER BY step", (run_id,))], dtype=float)
-        flat = np.array([r[0] for r in db.execute(
-            "SELECT value FROM sample WHERE run_id=? ORDER BY variable_id, step", (run_id,))],
-            dtype=float)
-        values = flat.reshape(len(var), len(times)).T if len(var) else np.empty((len(times), 0))
-        ref_rows = db.execute("SELECT variable_id, step, value FROM reference WHERE run_id=? "
-                              "ORDER BY variable_id, step", (run_id,)).fetchall()
-        reference = None
-        if ref_rows:
-            reference = np.full((len(times), len(var)), np.nan)
-            for vid, step, value in ref_rows:
-                reference[step, vid] = value
+        values = _read_values(db, run_id, len(var), len(times))
+        reference = _read_reference(db, run_id, len(var), len(times))
         att = db.execute("SELECT model, t, h, accepted FROM attempt WHERE run_id=? ORDER BY seq",
                          (run_id,)).fetchall()
-        own: dict[str, list[tuple[float, float]]] = {}
-        for vid, t, value in db.execute("SELECT variable_id, t, value FROM own_point WHERE "
-                                        "run_id=? ORDER BY variable_id, seq", (run_id,)):
-            own.setdefault(var[vid][0], []).append((t, value))
+        own_points = _read_own_points(db, run_id, var)
     finally:
         db.close()
     return StoredRun(
@@ -234,6 +219,45 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
         names=[v[0] for v in var], units=[v[1] for v in var], times=times, values=values,
         reference=reference,
         attempts=np.array([(a[1], a[2], a[3]) for a in att], dtype=float).reshape(-1, 3),
-        attempt_models=[a[0] for a in att],
-        own_points={n: (np.array([p[0] for p in pts]), np.array([p[1] for p in pts]))
-                    for n, pts in own.items()})
+        attempt_models=[a[0] for a in att], own_points=own_points)
+
+
+def _last_run_id(db: sqlite3.Connection, path: Path) -> int:
+    """The newest run's id: what :func:`read_run` reads when not told which run."""
+    row = db.execute("SELECT MAX(id) FROM run").fetchone()
+    if row is None or row[0] is None:
+        raise LookupError(f"{path} holds no runs")
+    return int(row[0])
+
+
+def _read_values(db: sqlite3.Connection, run_id: int, n_vars: int, n_points: int) -> np.ndarray:
+    """Exchanged values as (n_points, n_vars); samples are stored variable by variable."""
+    flat = np.array([r[0] for r in db.execute(
+        "SELECT value FROM sample WHERE run_id=? ORDER BY variable_id, step", (run_id,))],
+        dtype=float)
+    return flat.reshape(n_vars, n_points).T if n_vars else np.empty((n_points, 0))
+
+
+def _read_reference(db: sqlite3.Connection, run_id: int, n_vars: int,
+                    n_points: int) -> np.ndarray | None:
+    """The monolithic reference as (n_points, n_vars), NaN where a variable has none; ``None``
+    when the run stored no reference at all."""
+    ref_rows = db.execute("SELECT variable_id, step, value FROM reference WHERE run_id=? "
+                          "ORDER BY variable_id, step", (run_id,)).fetchall()
+    if not ref_rows:
+        return None
+    reference = np.full((n_points, n_vars), np.nan)
+    for vid, step, value in ref_rows:
+        reference[step, vid] = value
+    return reference
+
+
+def _read_own_points(db: sqlite3.Connection, run_id: int,
+                     var: list[tuple[str, str]]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Multi-rate runs: ``{output: (times, values)}`` at its own sub-model's points."""
+    own: dict[str, list[tuple[float, float]]] = {}
+    for vid, t, value in db.execute("SELECT variable_id, t, value FROM own_point WHERE "
+                                    "run_id=? ORDER BY variable_id, seq", (run_id,)):
+        own.setdefault(var[vid][0], []).append((t, value))
+    return {n: (np.array([p[0] for p in pts]), np.array([p[1] for p in pts]))
+            for n, pts in own.items()}

@@ -87,43 +87,65 @@ def check_fmu(path: str | Path,
     binary for this platform.
     """
     path = Path(path)
+    names, xml = _read_archive(path)
+    try:
+        _validate(xml)
+        md = fmpy.read_model_description(str(path), validate=False)
+    except Exception as exc:  # FMPy raises plain Exceptions for invalid descriptions
+        raise _refuse(path, f"invalid modelDescription.xml: {exc}") from exc
+    if md.fmiVersion == "1.0":
+        raise _refuse(path, f"FMI 1.0 is not supported (cosimstep runs {_describe(SUPPORTED)} "
+                      "FMUs)")
+    chosen = fmu_interface(md, supported)
+    if chosen is None:
+        raise _refuse(path, _unsupported(md, supported))
+    _check_binary(path, md, chosen, names)
+    return md
 
-    def refuse(reason: str) -> ValueError:
-        return ValueError(f"cannot use FMU {path}: {reason}")
 
+def _refuse(path: Path, reason: str) -> ValueError:
+    """The error :func:`check_fmu` raises, naming the file so a system's many FMUs are told
+    apart."""
+    return ValueError(f"cannot use FMU {path}: {reason}")
+
+
+def _read_archive(path: Path) -> tuple[list[str], bytes]:
+    """The entry names and ``modelDescription.xml`` of a zip that is safe to unpack; checked
+    before any XML is parsed, so a broken or hostile archive is refused with a clear reason."""
     if not path.is_file():
-        raise refuse("no such file")
+        raise _refuse(path, "no such file")
     if not zipfile.is_zipfile(path):
-        raise refuse("not a zip archive (an FMU is a zip file)")
+        raise _refuse(path, "not a zip archive (an FMU is a zip file)")
     try:
         with zipfile.ZipFile(path) as zf:
             names = zf.namelist()
             xml = zf.read("modelDescription.xml") if "modelDescription.xml" in names else None
     except (OSError, zipfile.BadZipFile) as exc:
-        raise refuse(f"corrupt zip archive ({exc})") from exc
+        raise _refuse(path, f"corrupt zip archive ({exc})") from exc
     for name in names:
         if _escapes(name):
-            raise refuse(f"archive entry '{name}' would unpack outside the FMU's folder "
-                         "(absolute path or '..'); refusing to unpack it")
+            raise _refuse(path, f"archive entry '{name}' would unpack outside the FMU's folder "
+                          "(absolute path or '..'); refusing to unpack it")
     if xml is None:
-        raise refuse("no modelDescription.xml at the top of the archive")
-    try:
-        _validate(xml)
-        md = fmpy.read_model_description(str(path), validate=False)
-    except Exception as exc:  # FMPy raises plain Exceptions for invalid descriptions
-        raise refuse(f"invalid modelDescription.xml: {exc}") from exc
-    if md.fmiVersion == "1.0":
-        raise refuse(f"FMI 1.0 is not supported (cosimstep runs {_describe(SUPPORTED)} FMUs)")
-    chosen = fmu_interface(md, supported)
-    if chosen is None:
-        offered = _offered(md)
-        only = " only" if len(offered) == 1 else ""
-        if not any(pair in SUPPORTED for pair in offered):
-            raise refuse(f"{_describe(offered)}{only} is not supported (cosimstep runs "
-                         f"{_describe(SUPPORTED)} FMUs)")
-        raise refuse(f"{_describe(offered)}{only}; this adapter runs {_describe(supported)} "
-                     "(cosimstep.adapters.fmu_open.open_fmu picks the adapter for any supported "
-                     "FMU)")
+        raise _refuse(path, "no modelDescription.xml at the top of the archive")
+    return names, xml
+
+
+def _unsupported(md: ModelDescription, supported: Sequence[tuple[str, str]]) -> str:
+    """Why none of the FMU's interfaces is in ``supported``: cosimstep cannot run it at all, or
+    only another adapter can (then :func:`~cosimstep.adapters.fmu_open.open_fmu` is the fix)."""
+    offered = _offered(md)
+    only = " only" if len(offered) == 1 else ""
+    if not any(pair in SUPPORTED for pair in offered):
+        return (f"{_describe(offered)}{only} is not supported (cosimstep runs "
+                f"{_describe(SUPPORTED)} FMUs)")
+    return (f"{_describe(offered)}{only}; this adapter runs {_describe(supported)} "
+            "(cosimstep.adapters.fmu_open.open_fmu picks the adapter for any supported FMU)")
+
+
+def _check_binary(path: Path, md: ModelDescription, chosen: tuple[str, str],
+                  names: list[str]) -> None:
+    """Refuse an FMU without a shared library for this platform in the chosen interface."""
     version, kind = chosen
     part = md.coSimulation if kind == "CS" else md.modelExchange
     folder = fmpy.platform_tuple if version == "3.0" else fmpy.platform
@@ -131,9 +153,8 @@ def check_fmu(path: str | Path,
     if binary not in names:
         found = sorted({n.split("/")[1] for n in names
                         if n.startswith("binaries/") and n.count("/") >= 2})
-        raise refuse(f"no binary for this platform ({binary} is missing; it has binaries for: "
-                     f"{', '.join(found) or 'none'})")
-    return md
+        raise _refuse(path, f"no binary for this platform ({binary} is missing; it has binaries "
+                      f"for: {', '.join(found) or 'none'})")
 
 
 _SCHEMAS: dict[str, Any] = {}

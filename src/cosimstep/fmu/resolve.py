@@ -11,10 +11,15 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cosimstep.errors import Problem
 from cosimstep.submodel import SubModel
+
+if TYPE_CHECKING:
+    from fmpy.model_description import ModelDescription, ModelVariable
+
+    from cosimstep.adapters.ode import SolveIvp
 
 RECIPE_SCHEME = "cosimstep:recipe:"  # an SSP component source naming a built-in FMU
 _SETTABLE_CAUSALITY = ("parameter", "input", "output")
@@ -75,8 +80,46 @@ def fmu_submodel(name: str, fmu: Path, overrides: Mapping[str, Any], where: str,
         ``solve_ivp`` settings of a model-exchange FMU (``method``, ``rtol``, ``atol``); a
         problem for a co-simulation FMU, which brings its own solver.
     """
-    from cosimstep.adapters.fmu import FMI2_ME, SUPPORTED, check_fmu, fmu_interface
     from cosimstep.adapters.fmu_open import open_fmu
+
+    md = _checked_description(fmu, solver, where, problems)
+    if md is None:
+        return None
+    by_name = {v.name: v for v in md.modelVariables}
+    values = _shared_values(by_name, shared, used)
+    if not _apply_overrides(md.modelName, by_name, overrides, values, where, problems):
+        return None
+    if solver is not None:
+        solver = _me_solver(solver, where, problems)
+        if solver is None:
+            return None
+    try:
+        return open_fmu(fmu, values, instance_name=name, solver=solver)
+    except ValueError as exc:
+        problems.append(Problem(where, str(exc), "set only parameters and start values the "
+                                "FMU allows to be set"))
+        return None
+
+
+def _me_solver(solver: Mapping[str, Any], where: str,
+               problems: list[Problem]) -> SolveIvp | None:
+    """The integrator a model-exchange FMU's ``solver`` settings describe; ``None`` after
+    recording a problem."""
+    from cosimstep.adapters.fmu_me import make_me_solver
+
+    try:
+        return make_me_solver(solver)
+    except ValueError as exc:
+        problems.append(Problem(f"{where}.solver", str(exc),
+                                "write {method = 'RK45', rtol = 1e-8, atol = 1e-10}"))
+        return None
+
+
+def _checked_description(fmu: Path, solver: Mapping[str, Any] | None, where: str,
+                         problems: list[Problem]) -> ModelDescription | None:
+    """The FMU's model description if cosimstep can run it (with ``solver`` only for model
+    exchange); ``None`` after recording a problem."""
+    from cosimstep.adapters.fmu import FMI2_ME, SUPPORTED, check_fmu, fmu_interface
 
     try:
         md = check_fmu(fmu, SUPPORTED)
@@ -89,50 +132,61 @@ def fmu_submodel(name: str, fmu: Path, overrides: Mapping[str, Any], where: str,
         problems.append(Problem(f"{where}.solver", "only a model-exchange FMU takes a solver",
                                 "remove it (a co-simulation FMU brings its own solver)"))
         return None
-    by_name = {v.name: v for v in md.modelVariables}
-    params = sorted(n for n, v in by_name.items() if v.causality == "parameter")
-    settable = sorted(n for n, v in by_name.items() if v.causality in _SETTABLE_CAUSALITY
-                      and v.variability != "constant")
+    return md
+
+
+def _shared_values(by_name: Mapping[str, ModelVariable], shared: Mapping[str, float] | None,
+                   used: set[str] | None) -> dict[str, Any]:
+    """The system's shared parameters this FMU has, marked as ``used`` so that the system can
+    report the ones no model took."""
     values: dict[str, Any] = {}
     for k, v in (shared or {}).items():
         if k in by_name and by_name[k].causality == "parameter":
             values[k] = v
             if used is not None:
                 used.add(k)
+    return values
+
+
+def _apply_overrides(model_name: str, by_name: Mapping[str, ModelVariable],
+                     overrides: Mapping[str, Any], values: dict[str, Any], where: str,
+                     problems: list[Problem]) -> bool:
+    """Add the valid overrides to ``values``; every bad one is recorded, so ``False`` after
+    reporting them all rather than only the first."""
     ok = True
     for key, value in overrides.items():
-        kind, _, var = key.partition(".")
-        v = by_name.get(var)
-        if v is None:
-            known, label = ((params, "parameters") if kind == "parameters"
-                            else (settable, "settable variables"))
-            problems.append(Problem(f"{where}.{key}", f"FMU '{md.modelName}' has no variable "
-                                    f"'{var}'", f"its {label}: {', '.join(known) or 'none'}"))
-            ok = False
-        elif kind == "parameters" and v.causality != "parameter":
-            problems.append(Problem(f"{where}.{key}", f"'{var}' has causality {v.causality}, not "
-                                    "parameter", "set its start value under `start` instead"))
-            ok = False
-        elif isinstance(value, str) or (isinstance(value, float) and not math.isfinite(value)):
-            problems.append(Problem(f"{where}.{key}", f"must be a finite number, got {value!r}",
-                                    "write a number"))
-            ok = False
+        problem = _override_problem(model_name, by_name, key, value, where)
+        if problem is None:
+            values[key.partition(".")[2]] = value
         else:
-            values[var] = value
-    if not ok:
-        return None
-    if solver is not None:
-        from cosimstep.adapters.fmu_me import make_me_solver
+            problems.append(problem)
+            ok = False
+    return ok
 
-        try:
-            solver = make_me_solver(solver)
-        except ValueError as exc:
-            problems.append(Problem(f"{where}.solver", str(exc),
-                                    "write {method = 'RK45', rtol = 1e-8, atol = 1e-10}"))
-            return None
-    try:
-        return open_fmu(fmu, values, instance_name=name, solver=solver)
-    except ValueError as exc:
-        problems.append(Problem(where, str(exc), "set only parameters and start values the "
-                                "FMU allows to be set"))
-        return None
+
+def _override_problem(model_name: str, by_name: Mapping[str, ModelVariable], key: str,
+                      value: Any, where: str) -> Problem | None:
+    """What is wrong with one override ``"<parameters|start>.<variable>" = value``, if anything."""
+    kind, _, var = key.partition(".")
+    v = by_name.get(var)
+    if v is None:
+        known, label = _settable_names(by_name, kind)
+        return Problem(f"{where}.{key}", f"FMU '{model_name}' has no variable '{var}'",
+                       f"its {label}: {', '.join(known) or 'none'}")
+    if kind == "parameters" and v.causality != "parameter":
+        return Problem(f"{where}.{key}", f"'{var}' has causality {v.causality}, not parameter",
+                       "set its start value under `start` instead")
+    if isinstance(value, str) or (isinstance(value, float) and not math.isfinite(value)):
+        return Problem(f"{where}.{key}", f"must be a finite number, got {value!r}",
+                       "write a number")
+    return None
+
+
+def _settable_names(by_name: Mapping[str, ModelVariable],
+                    kind: str) -> tuple[list[str], str]:
+    """The names an override of ``kind`` may use, and what to call them, for the message about
+    an unknown one."""
+    if kind == "parameters":
+        return sorted(n for n, v in by_name.items() if v.causality == "parameter"), "parameters"
+    return (sorted(n for n, v in by_name.items() if v.causality in _SETTABLE_CAUSALITY
+                   and v.variability != "constant"), "settable variables")
