@@ -29,6 +29,7 @@ def plot_run(run: StoredRun, path: str | Path, variables: list[str] | None = Non
     for ax, unit in zip(axes, units):
         _plot_unit_panel(ax, run, names, unit, colours)
     _plot_step_panel(axes[-1], run, colours)
+    _mark_events(axes, run)
     axes[0].set_title(_title(run), fontsize=10)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -88,6 +89,17 @@ def _plot_model_steps(ax: Any, run: StoredRun, models: list[str], colours: list[
         if bad.any():
             ax.plot(att[bad, 0], att[bad, 1], "x", color=c, ms=4,
                     label=f"{m} rejected")
+
+
+def _mark_events(axes: Any, run: StoredRun) -> None:
+    """A dotted line at every event on every panel, labelled once on the first."""
+    for i, e in enumerate(run.events[:200]):  # a marker per event is unreadable beyond that
+        for j, ax in enumerate(axes):
+            ax.axvline(e["t"], color="0.4", lw=0.7, ls=":",
+                       label="events" if i == 0 and j == 0 else None)
+        axes[0].annotate(f"{e['source']}: {e['kind']}", (e["t"], 1.0),
+                         xycoords=("data", "axes fraction"), rotation=90, fontsize=6,
+                         va="top", ha="right", color="0.3")
 
 
 def _title(run: StoredRun) -> str:

@@ -435,6 +435,7 @@ class Run:
             err, ref_values = scheme.error(reference, out, names)
         if sink is not None:
             scheme.store(sink, out)
+            sink.add_events(out.events)
             if ref_values is not None:
                 sink.add_reference(ref_values, [compiled.output_names.index(n) for n in names])
         return SimulationResult(

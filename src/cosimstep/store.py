@@ -11,6 +11,7 @@ Tables (one file can hold many runs)::
     calls(run_id, model, calls, time_in_model_s)
     own_point(run_id, variable_id, seq, t, value)      -- multi-rate: each output at its own
                                                           sub-model's communication points
+    event(run_id, seq, t, source, kind, payload_json)  -- events of discrete-event sub-models
 
 Rows are buffered and committed at least every ``flush_seconds`` of wall time, so a run that is
 interrupted or crashes keeps what it computed up to the last commit.
@@ -49,6 +50,9 @@ CREATE TABLE IF NOT EXISTS attempt(
 CREATE TABLE IF NOT EXISTS own_point(
     run_id INTEGER, variable_id INTEGER, seq INTEGER, t REAL, value REAL,
     PRIMARY KEY(run_id, variable_id, seq)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS event(
+    run_id INTEGER, seq INTEGER, t REAL, source TEXT, kind TEXT, payload_json TEXT,
+    PRIMARY KEY(run_id, seq)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS calls(
     run_id INTEGER, model TEXT, calls INTEGER, time_in_model_s REAL,
     PRIMARY KEY(run_id, model));
@@ -140,6 +144,12 @@ class Store:
                               for j, vid in enumerate(variable_ids)
                               for i, t in enumerate(times)])
 
+    def add_events(self, events: Sequence[Any]) -> None:
+        """The run's events (:class:`cosimstep.events.Event`), in time order."""
+        self._db.executemany("INSERT INTO event VALUES (?, ?, ?, ?, ?, ?)",
+                             [(self.run_id, i, float(e.t), e.source, e.kind,
+                               json.dumps(e.payload)) for i, e in enumerate(events)])
+
     def finish(self, status: str, message: str, t_end: float, wall_s: float,
                summary: dict[str, Any], calls: dict[str, int],
                time_in_models: dict[str, float]) -> None:
@@ -175,6 +185,8 @@ class StoredRun:
     own_points: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     """Multi-rate runs: ``{output: (times, values)}`` at its sub-model's own points (the
     common grid in ``times``/``values`` interpolates the other sub-models' outputs there)."""
+    events: list[dict[str, Any]] = field(default_factory=list)
+    """Events of discrete-event sub-models: ``{"t", "source", "kind", "payload"}``."""
 
     def to_pandas(self):
         """Exchanged values as a DataFrame indexed by time (needs pandas)."""
@@ -211,6 +223,10 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
         att = db.execute("SELECT model, t, h, accepted FROM attempt WHERE run_id=? ORDER BY seq",
                          (run_id,)).fetchall()
         own_points = _read_own_points(db, run_id, var)
+        events = [{"t": t, "source": src, "kind": kind, "payload": json.loads(payload)}
+                  for t, src, kind, payload in db.execute(
+                      "SELECT t, source, kind, payload_json FROM event WHERE run_id=? "
+                      "ORDER BY seq", (run_id,))]
     finally:
         db.close()
     return StoredRun(
@@ -219,7 +235,7 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
         names=[v[0] for v in var], units=[v[1] for v in var], times=times, values=values,
         reference=reference,
         attempts=np.array([(a[1], a[2], a[3]) for a in att], dtype=float).reshape(-1, 3),
-        attempt_models=[a[0] for a in att], own_points=own_points)
+        attempt_models=[a[0] for a in att], own_points=own_points, events=events)
 
 
 def _last_run_id(db: sqlite3.Connection, path: Path) -> int:

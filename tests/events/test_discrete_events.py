@@ -226,3 +226,16 @@ def test_an_endless_event_loop_ends_the_run_and_names_the_models():
     assert "more than 100 events" in result.message and "endless event loop" in result.message
     assert "a, b keep firing each other" in result.message
     assert len(result.events) >= 100 and len(result.times) > 1  # what happened is kept
+
+
+def test_events_are_stored_and_marked_on_the_plot(tmp_path):
+    from cosimstep.plotting import plot_run
+    from cosimstep.store import read_run
+
+    db = tmp_path / "events.db"
+    result = cs.simulate(_timetable_system(), 1.0, cs.Fixed(0.1), store=db)
+    stored = read_run(db)
+    assert stored.events == [e.to_dict() for e in result.events]
+    assert [e["t"] for e in stored.events] == [0.25, 0.7]
+    assert stored.summary["events"][0]["kind"] == "timetable"
+    assert plot_run(stored, tmp_path / "events.png").stat().st_size > 10_000
