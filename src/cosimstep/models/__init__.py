@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from functools import partial
 
 from cosimstep.adapters.ode import InternalSolver, ParameterSchedule
-from cosimstep.models import linear, pendulum
+from cosimstep.models import linear, pendulum, thermal
 from cosimstep.submodel import SubModel
 
 Builder = Callable[[ParameterSchedule, Mapping[str, float], InternalSolver | None], SubModel]
@@ -56,3 +56,13 @@ register(ModelKind("linear_coupled.fast", "fast part: u' = lam v + w, v' = -lam 
                    linear.default_parameters(), ("u", "v", "w"), linear.fast))
 register(ModelKind("linear_coupled.slow", "slow part: w' = -w + u (input u)",
                    linear.default_parameters(), ("u", "v", "w"), linear.slow))
+
+register(ModelKind("thermal_loop", "cooling loop with a pump that fails (pump, coolant, load), "
+                   "monolithic; fails at the failure model's first time",
+                   thermal.default_parameters(), thermal.START, thermal.monolithic))
+register(ModelKind("thermal_loop.pump", "pump flow q: tau q' = ok q0 - q (input ok)",
+                   thermal.default_parameters(), thermal.START, thermal.pump))
+register(ModelKind("thermal_loop.coolant", "coolant temperature Tc (inputs q, Th)",
+                   thermal.default_parameters(), thermal.START, thermal.coolant))
+register(ModelKind("thermal_loop.load", "heat load temperature Th (input Tc)",
+                   thermal.default_parameters(), thermal.START, thermal.load))
