@@ -89,7 +89,22 @@ class _Context:
         self.master.restore(token)
 
 
-class ControllerLoop(Actor):
+class _Loop(Actor):
+    """What both synchronous loops are to the kernel: one actor at the common time ``t``."""
+
+    t: float
+    until: float
+
+    @property
+    def time(self) -> float:
+        return self.t
+
+    @property
+    def finished(self) -> bool:
+        return self.t >= self.until
+
+
+class ControllerLoop(_Loop):
     """The time loop for any controller: attempts, rejections, the step context."""
 
     def __init__(self, runner: Master, controller: Controller, t0: float, until: float,
@@ -111,14 +126,6 @@ class ControllerLoop(Actor):
         self._located = math.nan  # the time a located crossing lands on
         self._h = 0.0  # the step the controller proposed last
         self._hmax = math.inf
-
-    @property
-    def time(self) -> float:
-        return self.t
-
-    @property
-    def finished(self) -> bool:
-        return self.t >= self.until
 
     def act(self, limit: float) -> None:
         """Steps until ``limit`` (a step that would pass it lands on it)."""
@@ -264,7 +271,7 @@ class ControllerLoop(Actor):
         return np.array(ctx.all_times), values, np.array(self.steps)
 
 
-class FixedLoop(Actor):
+class FixedLoop(_Loop):
     """The fixed-step time loop without per-step objects: the same run as
     :class:`ControllerLoop` with :class:`~cosimstep.controllers.Fixed` (same calls, values,
     counts, stored rows and errors; tests/orchestration/test_lean_fixed_step.py).
@@ -314,14 +321,6 @@ class FixedLoop(Actor):
             new = np.empty((rows, *old.shape[1:]))
             new[:old.shape[0]] = old
             setattr(self, name, new)
-
-    @property
-    def time(self) -> float:
-        return self.t
-
-    @property
-    def finished(self) -> bool:
-        return self.t >= self.until
 
     def act(self, limit: float) -> None:
         """Steps until ``limit``; with a call time-out, in a watched worker thread."""
