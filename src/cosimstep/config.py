@@ -239,6 +239,11 @@ def _event_model(sec: ModelSection, where: str, problems: list[Problem]) -> SubM
     if sec.start:
         problems.append(Problem(f"{where}.start", f"type '{sec.type}' has no start values",
                                 "give its outputs' first values as parameters"))
+    past = [t for t in sec.parameters.get("times", []) if isinstance(t, int | float) and t < 0]
+    if sec.type == "timetable" and past:
+        problems.append(Problem(f"{where}.parameters.times", f"times {past} are before the "
+                                "start (runs start at t = 0)", "give times >= 0"))
+        return None
     try:
         return cls(**sec.parameters)
     except (TypeError, ValueError) as exc:

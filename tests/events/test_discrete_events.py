@@ -174,6 +174,16 @@ def test_event_kinds_from_a_system_file(tmp_path):
     assert res.exit_code == 2 and "Traceback" not in res.output
     assert "law 'gamma'" in res.output and "scale must be a positive number" in res.output
     assert "times must increase" in res.output  # every problem at once
+    file.write_text(
+        'until = 1.0\n[models.times]\ntype = "timetable"\n'
+        'parameters = { times = [-1.0, 0.5], values = [[1.0], [2.0]] }\n'
+        '[models.mon]\ntype = "threshold"\nparameters = { level = 0.5 }\n'
+        '[models.tank]\ntype = "linear_coupled.slow"\n'
+        '[[connections]]\nfrom = "tank.w"\nto = "mon.temperature"\n')
+    res = CliRunner().invoke(main, ["run", str(file)])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert "before the start" in res.output  # an event time in the past
+    assert "no input 'temperature'" in res.output and "its inputs are: x" in res.output
 
 
 def _monitored(level: float, hysteresis: float) -> cs.System:
