@@ -33,7 +33,6 @@ Every problem found is collected and raised together as one
 from __future__ import annotations
 
 import math
-import posixpath
 import shutil
 import stat
 import tempfile
@@ -45,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from cosimstep.archive import escapes, size_problems
 from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.spec import Origin, SystemSpec, finish, parse_header
 from cosimstep.system import System
@@ -111,13 +111,6 @@ def _tag(ns: str, local: str) -> str:
     return f"{{{ns}}}{local}"
 
 
-def _escapes(name: str) -> bool:
-    """Whether an archive member name points outside the folder it is unpacked into."""
-    if not name or "\\" in name or name.startswith("/") or (len(name) > 1 and name[1] == ":"):
-        return True
-    return ".." in posixpath.normpath(name).split("/")
-
-
 def unpack(path: Path, problems: list[Problem]) -> Path | None:
     """Check every member of an ``.ssp`` archive, then unpack it into a new temporary folder.
 
@@ -133,13 +126,15 @@ def unpack(path: Path, problems: list[Problem]) -> Path | None:
         with zipfile.ZipFile(path) as zf:
             infos = zf.infolist()
             for info in infos:
-                if _escapes(info.filename):
+                if escapes(info.filename):
                     problems.append(Problem(f"{src}: {info.filename}", "archive member would "
                                             "unpack outside the SSP's folder (absolute path or "
                                             "'..')", "rebuild the archive with relative names"))
                 elif stat.S_ISLNK(info.external_attr >> 16):
                     problems.append(Problem(f"{src}: {info.filename}", "archive member is a "
                                             "symbolic link", "store the file itself"))
+            problems.extend(Problem(src, reason, "rebuild the archive without it, or raise the "
+                                    "limit") for reason in size_problems(infos))
             names = {i.filename for i in infos}
             if SSD_NAME not in names:
                 problems.append(Problem(src, f"no {SSD_NAME} at the top of the archive",
@@ -384,7 +379,7 @@ def _apply_mapping(binding: ET.Element, values: dict[str, tuple[float, str | Non
 
 def _member(name: str, folder: Path, where: str, problems: list[Problem]) -> Path | None:
     """A file inside the unpacked archive named by a relative URI."""
-    if ":" in name.split("/")[0] or _escapes(name):
+    if ":" in name.split("/")[0] or escapes(name):
         problems.append(Problem(where, f"'{name}' is not a relative path inside the archive",
                                 "refer to files inside the .ssp, e.g. resources/model.fmu"))
         return None

@@ -14,7 +14,6 @@ FMU-state pointers for reuse until :meth:`FmuBase.terminate` frees them. The ada
 from __future__ import annotations
 
 import contextlib
-import posixpath
 import shutil
 import tempfile
 import threading
@@ -36,6 +35,7 @@ from fmpy.fmi2 import (
 )
 from fmpy.model_description import ModelDescription, ModelVariable, ValidationError
 
+from cosimstep.archive import escapes, size_problems
 from cosimstep.submodel import Port, SubModel
 
 STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
@@ -118,12 +118,16 @@ def _read_archive(path: Path) -> tuple[list[str], bytes]:
         raise _refuse(path, "not a zip archive (an FMU is a zip file)")
     try:
         with zipfile.ZipFile(path) as zf:
-            names = zf.namelist()
+            infos = zf.infolist()
+            names = [i.filename for i in infos]
             xml = zf.read("modelDescription.xml") if "modelDescription.xml" in names else None
     except (OSError, zipfile.BadZipFile) as exc:
         raise _refuse(path, f"corrupt zip archive ({exc})") from exc
+    too_big = size_problems(infos, _needed)
+    if too_big:
+        raise _refuse(path, "; ".join(too_big))
     for name in names:
-        if _escapes(name):
+        if escapes(name):
             raise _refuse(path, f"archive entry '{name}' would unpack outside the FMU's folder "
                           "(absolute path or '..'); refusing to unpack it")
     if xml is None:
@@ -192,13 +196,6 @@ def _validate(xml: bytes) -> None:
 def _needed(name: str) -> bool:
     """Whether an archive entry is unpacked to run the FMU (everything but sources and docs)."""
     return not name.startswith(("sources/", "documentation/"))
-
-
-def _escapes(name: str) -> bool:
-    """Whether a zip entry name points outside the folder it is unpacked into."""
-    if "\\" in name or name.startswith("/") or (len(name) > 1 and name[1] == ":"):
-        return True
-    return ".." in posixpath.normpath(name).split("/")
 
 
 class _SavedState:

@@ -63,7 +63,7 @@ def describe_fmu(path: str | Path) -> dict[str, Any]:
 def _archive_names(path: Path) -> list[str]:
     """The archive's entry names, once it is known to be a safe zip with a model description;
     ``ValueError`` otherwise (before FMPy, whose own errors are less clear, reads it)."""
-    from cosimstep.adapters.fmu_base import _escapes
+    from cosimstep.archive import escapes
 
     if not path.is_file():
         raise ValueError(f"{path}: no such file")
@@ -74,7 +74,7 @@ def _archive_names(path: Path) -> list[str]:
             names = zf.namelist()
     except (OSError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path}: corrupt zip archive ({exc})") from exc
-    unsafe = [n for n in names if _escapes(n)]
+    unsafe = [n for n in names if escapes(n)]
     if unsafe:
         raise ValueError(f"{path}: archive entries would unpack outside the FMU's folder: "
                          f"{', '.join(unsafe)}")

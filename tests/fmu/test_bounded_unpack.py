@@ -1,0 +1,58 @@
+"""An FMU or SSP that would unpack into too much is refused before anything is written."""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from cosimstep.adapters.fmu_base import check_fmu
+from cosimstep.errors import ConfigurationError
+
+MIB = 1024**2
+
+
+def _bomb(source: Path, target: Path, member: str, size: int) -> Path:
+    shutil.copy(source, target)
+    with zipfile.ZipFile(target, "a", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr(member, b"\0" * size)  # 20 MiB of zeros: about 20 KiB compressed
+    return target
+
+
+def _unpacked() -> set[Path]:
+    return set(Path(tempfile.gettempdir()).glob("cosimstep-*"))
+
+
+def test_an_fmu_above_the_limit_or_the_ratio_is_refused_unread(bar_fmus, tmp_path,
+                                                                 monkeypatch):
+    monkeypatch.setenv("COSIMSTEP_UNPACK_LIMIT", str(10 * MIB))
+    bomb = _bomb(bar_fmus[1], tmp_path / "bomb.fmu", "resources/zeros.bin", 20 * MIB)
+    before = _unpacked()
+    with pytest.raises(ValueError) as info:
+        check_fmu(bomb)
+    message = str(info.value)
+    assert "above the limit of 10.0 MiB" in message  # both reasons, at once
+    assert "member 'resources/zeros.bin' unpacks 20.0 MiB" in message and "zip bomb" in message
+    assert _unpacked() == before  # nothing was written
+    # sources/ is never unpacked, so it does not count against the limit
+    docs = _bomb(bar_fmus[1], tmp_path / "docs.fmu", "sources/zeros.c", 20 * MIB)
+    assert check_fmu(docs).modelName
+
+
+def test_an_ssp_above_the_limit_is_a_configuration_error(bar_fmus, tmp_path, monkeypatch):
+    from cosimstep.ssp import load_ssp
+
+    monkeypatch.setenv("COSIMSTEP_UNPACK_LIMIT", str(10 * MIB))
+    ssp = tmp_path / "bomb.ssp"
+    with zipfile.ZipFile(ssp, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("SystemStructure.ssd", "<x/>")
+        zf.writestr("resources/zeros.bin", b"\0" * (20 * MIB))
+    before = _unpacked()
+    with pytest.raises(ConfigurationError) as info:
+        load_ssp(ssp)
+    text = str(info.value)
+    assert "above the limit" in text and "zip bomb" in text
+    assert _unpacked() == before
