@@ -56,3 +56,28 @@ def test_an_ssp_above_the_limit_is_a_configuration_error(bar_fmus, tmp_path, mon
     text = str(info.value)
     assert "above the limit" in text and "zip bomb" in text
     assert _unpacked() == before
+
+
+def test_instances_of_one_fmu_share_one_unpacked_folder(bar_fmus):
+    import numpy as np
+
+    from cosimstep.adapters.fmu import FmuSubModel
+
+    a = FmuSubModel(bar_fmus[1], instance_name="a")
+    b = FmuSubModel(bar_fmus[1], instance_name="b")
+    a.initialize(0.0)
+    b.initialize(0.0)
+    try:
+        assert a._unzipped == b._unzipped and a._unzipped.is_dir()
+        for m in (a, b):  # independent instances all the same
+            m.set_inputs(np.array([0.1, 0.0]))
+        a.do_step(0.0, 0.01)
+        assert not np.array_equal(a.get_outputs(), b.get_outputs())
+        b.do_step(0.0, 0.01)
+        assert np.array_equal(a.get_outputs(), b.get_outputs())
+    finally:
+        folder = a._unzipped
+        a.terminate()
+        assert folder.is_dir()  # b still uses it
+        b.terminate()
+    assert not folder.exists()
