@@ -7,6 +7,7 @@ configuration or the command line is wrong (every problem listed).
 from __future__ import annotations
 
 import json
+import math
 import sqlite3
 import sys
 from importlib import resources
@@ -16,7 +17,13 @@ from typing import Any
 import click
 
 from cosimstep.config import SystemSpec, load_system
-from cosimstep.controllers import ADAPTIVE, CONTROLLERS, DEFAULT_ADAPTIVE, make_controller
+from cosimstep.controllers import (
+    ADAPTIVE,
+    CONTROLLERS,
+    DEFAULT_ADAPTIVE,
+    controller_options,
+    make_controller,
+)
 from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.masters import MASTERS, MasterOptions
 from cosimstep.simulate import SimulationResult, simulate
@@ -77,6 +84,10 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
 
     With --tol and no --controller the default adaptive controller runs.
     """
+    if until is not None and not (math.isfinite(until) and until > 0):
+        _config_exit(ConfigurationError(
+            [Problem("--until", f"must be a positive number of seconds, got {until}",
+                     "e.g. --until 10")], "the command line"))
     spec = _load(system, until)
     result = _run(spec, master, extrapolation, controller, step, tol, seed, out,
                   _options(options), interpolation, estimate)
@@ -109,18 +120,38 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
     opts = _master_options(spec, master, extrapolation, interpolation)
     settings = _controller_settings(spec, controller, step, tol, seed, options)
     name = settings.pop("name", None)
-    try:
-        ctrl = make_controller(name, settings.pop("step", None), settings.pop("tol", None),
-                               **settings)
-    except (TypeError, ValueError) as exc:
-        _config_exit(ConfigurationError(
-            [Problem("controller", str(exc), "see `cosimstep run --help`")], spec.source))
+    ctrl = _controller(name, settings, spec.source)
     _check_scheme(ctrl, opts, spec)
     _check_estimate(estimate, ctrl, spec)
     store = out or f"{spec.name}.db"
     return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=store,
                     name=spec.name, config={"source": spec.source, "system": spec.raw},
                     progress=None, estimate=estimate)
+
+
+def _controller(name: str | None, settings: dict[str, Any], source: str) -> Any:
+    """The controller, or exit 2 saying what is wrong (an unknown option: the valid ones)."""
+    settings = dict(settings)
+    try:
+        return make_controller(name, settings.pop("step", None), settings.pop("tol", None),
+                               **settings)
+    except TypeError as exc:
+        fix = f"its options: {', '.join(controller_options(name))}" \
+            if name in CONTROLLERS or name is None else "see `cosimstep run --help`"
+        _config_exit(ConfigurationError([Problem("controller", _plain_type_error(exc), fix)],
+                                        source))
+    except ValueError as exc:
+        _config_exit(ConfigurationError(
+            [Problem("controller", str(exc), "see `cosimstep run --help`")], source))
+    raise AssertionError  # unreachable: _config_exit exits
+
+
+def _plain_type_error(exc: TypeError) -> str:
+    """``__init__() got an unexpected keyword argument 'x'`` as a user reads it."""
+    text = str(exc)
+    if "unexpected keyword argument" in text:
+        return f"unknown option {text.rpartition('argument ')[2]}"
+    return text
 
 
 def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | None,
@@ -212,6 +243,12 @@ def _report(result: SimulationResult, as_json: bool) -> None:
 def validate(system: str) -> None:
     """Check SYSTEM and list every problem (exit 2 if there are any)."""
     spec = _load(system)
+    if spec.controller:  # the file's run defaults must build, as `run` will build them
+        ctrl = _controller(spec.controller.get("name", DEFAULT_ADAPTIVE if "tol" in
+                                               spec.controller else None),
+                           {k: v for k, v in spec.controller.items() if k != "name"},
+                           spec.source)
+        _check_scheme(ctrl, spec.master, spec)
     click.echo(f"{system}: ok — {len(spec.system.models)} models, "
                f"{len(spec.system.connections)} connections"
                + (", with monolithic reference" if spec.reference else ""))
@@ -242,12 +279,24 @@ def plot(db: str, output: str, run_id: int | None) -> None:
     from cosimstep.plotting import plot_run
     from cosimstep.store import read_run
 
+    formats = _figure_formats()
+    suffix = Path(output).suffix.lower().lstrip(".")
+    if suffix not in formats:
+        _config_exit(ConfigurationError(
+            [Problem("-o", f"'{output}' is not a figure format matplotlib writes",
+                     f"end it in one of: .{', .'.join(sorted(formats))}")], "the command line"))
     try:
         stored = read_run(db, run_id)
     except (FileNotFoundError, LookupError, sqlite3.DatabaseError) as exc:
         click.echo(f"error: {db}: {exc} (is it a cosimstep results store?)", err=True)
         sys.exit(EXIT_CONFIG)
     click.echo(f"wrote {plot_run(stored, output)}")
+
+
+def _figure_formats() -> set[str]:
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return set(FigureCanvasBase.get_supported_filetypes())
 
 
 @main.command()

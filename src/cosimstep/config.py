@@ -128,20 +128,23 @@ def _build_system(raw: dict[str, Any], header: HeaderSection, changes: Changes, 
                   loc: Callable[[str], str], problems: list[Problem], used: set[str]) -> System:
     """The models and connections of a TOML file, then the system-level checks."""
     system = System()
+    refused = set()  # models already reported: their connections would only repeat that
     for name, body in raw.get("models", {}).items():
         where = loc(f"models.{name}")
         sec = parse(ModelSection, body, where, problems)
-        if sec is None:
+        model = None if sec is None else _build_model(name, sec, header, changes, base_dir,
+                                                      where, problems, used)
+        if model is None:
+            refused.add(name)
             continue
-        model = _build_model(name, sec, header, changes, base_dir, where, problems, used)
-        if model is not None:
-            try:
-                system.add(name, model, where=where)
-            except ValueError as exc:
-                problems.append(Problem(where, str(exc), "rename the model"))
+        try:
+            system.add(name, model, where=where)
+        except ValueError as exc:
+            problems.append(Problem(where, str(exc), "rename the model"))
     for i, body in enumerate(raw.get("connections", [])):
         sec = parse(ConnectionSection, body, loc(f"connections[{i}]"), problems)
-        if sec is not None:
+        ends = {str(end).partition(".")[0] for end in (sec.from_, sec.to)} if sec else set()
+        if sec is not None and not ends & refused:
             system.connect(sec.from_, sec.to, sec.gain, sec.offset,
                            where=loc(f"connections[{i}] ({sec.from_} -> {sec.to})"))
     if raw.get("models"):

@@ -215,3 +215,37 @@ def test_run_estimate_rerun_reports_its_estimate_and_cost(examples, tmp_path):
                                     "--estimate", "rerun", "--out",
                                     str(tmp_path / "f.db")])
     assert bad.exit_code == 2 and "--estimate" in bad.output and "give --tol" in bad.output
+
+
+def test_user_errors_are_configuration_errors_not_tracebacks(examples, tmp_path):
+    runner = CliRunner()
+    linear = str(examples / "linear_coupled.toml")
+    cases = [
+        (["run", linear, "--until", "-1"], "--until: must be a positive number"),
+        (["run", linear, "--tol", "1e-3", "--opt", "foo=bar"],
+         "unknown option 'foo' (fix: its options: tol, h0, atol, rtol, hmin, hmax"),
+    ]
+    (tmp_path / "neg.toml").write_text(
+        'until = 1.0\n[models.a]\ntype = "linear_coupled.slow"\n'
+        '[controller]\nname = "fixed"\nstep = -0.1\n')
+    cases.append((["validate", str(tmp_path / "neg.toml")], "`step` must be positive"))
+    db = tmp_path / "r.db"
+    runner.invoke(main, ["run", linear, "--until", "0.05", "--step", "0.01", "--out", str(db)])
+    cases.append((["plot", str(db), "-o", str(tmp_path / "x.jpg2")],
+                  "not a figure format matplotlib writes"))
+    for args, expected in cases:
+        res = runner.invoke(main, args)
+        assert res.exit_code == 2, (args, res.output)
+        assert expected in res.output and "Traceback" not in res.output, res.output
+
+
+def test_one_bad_model_causes_no_follow_on_errors(tmp_path):
+    (tmp_path / "bad.toml").write_text(
+        'until = 1.0\n[models.bar1]\ntype = "double_pendulum.bar1"\n'
+        'parameters = { l1 = "long" }\n[models.bar2]\ntype = "double_pendulum.bar2"\n'
+        '[[connections]]\nfrom = "bar1.theta"\nto = "bar2.theta1"\n'
+        '[[connections]]\nfrom = "bar2.theta"\nto = "bar1.theta2"\n')
+    res = CliRunner().invoke(main, ["validate", str(tmp_path / "bad.toml")])
+    assert res.exit_code == 2
+    assert "1 problem(s)" in res.output and "models.bar1.parameters.l1" in res.output
+    assert "unknown model" not in res.output

@@ -57,7 +57,21 @@ def make_controller(name: str | None, step: float | None = None, tol: float | No
     return CONTROLLERS[name](**kwargs)
 
 
+def controller_options(name: str | None) -> list[str]:
+    """The options a controller takes by name (its own and, for the error-controlled ones, the
+    :class:`StepPolicy` fields), for messages that list them."""
+    import dataclasses
+    import inspect
+
+    cls = CONTROLLERS[name or "fixed"]
+    params = inspect.signature(cls.__init__).parameters
+    own = [p for p in params if p not in ("self", "policy", "options", "kwargs")]
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        own += [f.name for f in dataclasses.fields(StepPolicy) if f.name not in own]
+    return own
+
+
 __all__ = ["ADAPTIVE", "CONTROLLERS", "DEFAULT_ADAPTIVE", "RKF23", "RKF45", "AdaptiveTolerance",
            "Attempt", "Controller", "Corrector", "Curvature", "Defect", "Doubling", "Embedded",
            "Fixed", "PredictorCorrector", "Random", "StepContext", "StepPolicy", "Switching",
-           "fft_hmax", "fixed_step_from", "make_controller"]
+           "controller_options", "fft_hmax", "fixed_step_from", "make_controller"]
