@@ -293,6 +293,45 @@ def plot(db: str, output: str, run_id: int | None) -> None:
     click.echo(f"wrote {plot_run(stored, output)}")
 
 
+@main.command()
+@click.argument("db", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Output file: .csv, .parquet (needs cosimstep[parquet]) or .mat.")
+@click.option("--run", "run_id", type=int, help="Run id in the store (default: the last).")
+@click.option("--variables", help="Comma-separated outputs (default: all), e.g. bar1.theta.")
+def results(db: str, output: str, run_id: int | None, variables: str | None) -> None:
+    """Export a stored run's values (time and one column per output)."""
+    from cosimstep.results import FORMATS, write
+    from cosimstep.store import read_run
+
+    problems = []
+    if Path(output).suffix.lower() not in FORMATS:
+        problems.append(Problem("-o", f"'{output}': unknown format",
+                                f"end it in one of {', '.join(FORMATS)}"))
+    if Path(output).suffix.lower() == ".parquet" and not _has("pyarrow"):
+        problems.append(Problem("-o", "writing Parquet needs pandas and pyarrow",
+                                'pip install "cosimstep[parquet]"'))
+    try:
+        stored = read_run(db, run_id)
+    except (FileNotFoundError, LookupError, sqlite3.DatabaseError) as exc:
+        problems.append(Problem(db, f"{exc}", "give a cosimstep results store"))
+        stored = None
+    if problems:
+        _config_exit(ConfigurationError(problems, "the command line"))
+    chosen = [v.strip() for v in variables.split(",") if v.strip()] if variables else None
+    try:
+        click.echo(f"wrote {write(stored, output, chosen)}")
+    except KeyError as exc:
+        _config_exit(ConfigurationError([Problem("--variables", exc.args[0],
+                                                 "name outputs of the run")], db))
+
+
+def _has(module: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(module) is not None
+
+
 def _figure_formats() -> set[str]:
     from matplotlib.backend_bases import FigureCanvasBase
 
