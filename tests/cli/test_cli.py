@@ -122,8 +122,18 @@ def test_console_script_demo(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "cosimstep", "demo", "--out", str(tmp_path)],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    assert (tmp_path / "double_pendulum_slow.png").exists()
+    assert (tmp_path / "demo.png").stat().st_size > 20_000
     assert "status: ok" in proc.stdout
+    from cosimstep.store import runs
+
+    stored = runs(tmp_path / "demo.db")
+    assert [s for _, _, s in stored] == ["ok"] * 3
+    # the three runs at about equal error, the adaptive ones with fewer calls than the fixed step
+    rows = {line.split()[0]: line.split() for line in proc.stdout.splitlines()[1:4]}
+    calls = {k: int(v[-3]) for k, v in rows.items()}
+    errors = {k: float(v[-2]) for k, v in rows.items()}
+    assert calls["adaptive"] < calls["fixed"] and calls["multirate,"] < calls["fixed"]
+    assert max(errors.values()) < 3 * min(errors.values())
 
 
 def test_tolerance_with_fixed_controller_is_a_configuration_error(examples):
