@@ -325,6 +325,34 @@ def results(db: str, output: str, run_id: int | None, variables: str | None) -> 
                                                  "name outputs of the run")], db))
 
 
+@main.command("runs")
+@click.argument("db", type=click.Path(dir_okay=False))
+@click.option("--delete", "delete", type=int, metavar="ID", help="Remove run ID from the store.")
+@click.option("--json", "as_json", is_flag=True, help="Print the runs as a JSON list.")
+def list_runs(db: str, delete: int | None, as_json: bool) -> None:
+    """List the runs in a results store (a killed run shows as abandoned)."""
+    from cosimstep.store import delete_run, run_table
+
+    try:
+        if delete is not None:
+            delete_run(db, delete)
+            click.echo(f"deleted run {delete} from {db}")
+            return
+        table = run_table(db)
+    except (FileNotFoundError, LookupError, RuntimeError, sqlite3.DatabaseError) as exc:
+        click.echo(f"error: {db}: {exc}", err=True)
+        sys.exit(EXIT_CONFIG)
+    if as_json:
+        click.echo(json.dumps(table, indent=2, default=str))
+        return
+    click.echo(f"{'id':>4s}  {'status':11s} {'t_end':>9s} {'wall s':>8s}  {'created':19s}  system")
+    for r in table:
+        t_end = f"{r['t_end']:9.4g}" if r["t_end"] is not None else f"{'-':>9s}"
+        wall = f"{r['wall_s']:8.2f}" if r["wall_s"] is not None else f"{'-':>8s}"
+        click.echo(f"{r['id']:4d}  {r['status']:11s} {t_end} {wall}  {r['created'][:19]}  "
+                   f"{r['system']}")
+
+
 def _has(module: str) -> bool:
     import importlib.util
 

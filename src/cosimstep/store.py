@@ -2,7 +2,8 @@
 
 Tables (one file can hold many runs)::
 
-    run(id, created, system, config_json, status, message, t_end, wall_s, summary_json)
+    run(id, created, system, config_json, status, message, t_end, wall_s, summary_json,
+        host, pid, heartbeat)                          -- who writes it, and when it last did
     variable(run_id, id, name, unit)                   -- one row per exchanged output
     point(run_id, step, t)                             -- accepted communication points
     sample(run_id, step, variable_id, value)           -- every exchanged value at every point
@@ -20,6 +21,8 @@ interrupted or crashes keeps what it computed up to the last commit.
 from __future__ import annotations
 
 import json
+import os
+import socket
 import sqlite3
 import time
 from collections.abc import Sequence
@@ -59,6 +62,20 @@ CREATE TABLE IF NOT EXISTS calls(
 """
 
 
+OWNER_COLUMNS = (("host", "TEXT"), ("pid", "INTEGER"), ("heartbeat", "REAL"))
+"""Added to the run table (stores written before they existed get them on opening)."""
+STALE_SECONDS = 60.0
+"""A ``running`` run whose writer's heartbeat is older than this (and whose process is gone, when
+it ran on this host) is ``abandoned``: killed, or its machine died."""
+
+
+def _add_owner_columns(db: sqlite3.Connection) -> None:
+    have = {row[1] for row in db.execute("PRAGMA table_info(run)")}
+    for name, kind in OWNER_COLUMNS:
+        if name not in have:
+            db.execute(f"ALTER TABLE run ADD COLUMN {name} {kind}")
+
+
 class Store:
     """Writes one run incrementally."""
 
@@ -67,6 +84,7 @@ class Store:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._db = sqlite3.connect(self.path)
         self._db.executescript(SCHEMA)
+        _add_owner_columns(self._db)
         self._flush_seconds = flush_seconds
         self._last_flush = time.monotonic()
         self._points: list[tuple] = []
@@ -79,8 +97,10 @@ class Store:
     def begin(self, system: str, config: dict[str, Any], names: Sequence[str],
               units: Sequence[str]) -> int:
         cur = self._db.execute(
-            "INSERT INTO run(created, system, config_json, status) VALUES (?, ?, ?, 'running')",
-            (datetime.now(UTC).isoformat(), system, json.dumps(config, default=str)))
+            "INSERT INTO run(created, system, config_json, status, host, pid, heartbeat) "
+            "VALUES (?, ?, ?, 'running', ?, ?, ?)",
+            (datetime.now(UTC).isoformat(), system, json.dumps(config, default=str),
+             socket.gethostname(), os.getpid(), time.time()))
         self.run_id = int(cur.lastrowid)
         self._n_vars = len(names)
         self._db.executemany("INSERT INTO variable VALUES (?, ?, ?, ?)",
@@ -123,6 +143,7 @@ class Store:
         db.executemany("INSERT INTO point VALUES (?, ?, ?)", self._points)
         db.executemany("INSERT INTO sample VALUES (?, ?, ?, ?)", self._samples)
         db.executemany("INSERT INTO attempt VALUES (?, ?, ?, ?, ?, ?, ?)", self._attempts)
+        db.execute("UPDATE run SET heartbeat=? WHERE id=?", (time.time(), self.run_id))
         db.commit()
         self._points.clear()
         self._samples.clear()
@@ -196,9 +217,62 @@ class StoredRun:
 
 
 def runs(path: str | Path) -> list[tuple[int, str, str]]:
-    """``(id, system, status)`` of every run in a store."""
+    """``(id, system, status)`` of every run in a store; a ``running`` run whose writer is gone
+    is ``abandoned`` (see :func:`run_table`)."""
+    return [(r["id"], r["system"], r["status"]) for r in run_table(path)]
+
+
+def run_table(path: str | Path) -> list[dict[str, Any]]:
+    """Every run of a store: id, created, system, status, message, t_end, wall_s, host, pid.
+
+    ``running`` is told apart from ``abandoned`` (the writer was killed, or its machine died):
+    on this host by whether the writing process still exists, elsewhere by a heartbeat older
+    than :data:`STALE_SECONDS` (the store commits at least every half second while it runs).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no results store at {path}")
     with sqlite3.connect(path) as db:
-        return [tuple(r) for r in db.execute("SELECT id, system, status FROM run ORDER BY id")]
+        _add_owner_columns(db)
+        rows = db.execute("SELECT id, created, system, status, message, t_end, wall_s, host, "
+                          "pid, heartbeat FROM run ORDER BY id").fetchall()
+    keys = ("id", "created", "system", "status", "message", "t_end", "wall_s", "host", "pid",
+            "heartbeat")
+    out = [dict(zip(keys, r)) for r in rows]
+    for run in out:
+        if run["status"] == "running" and not _alive(run):
+            run["status"] = "abandoned"
+    return out
+
+
+def _alive(run: dict[str, Any]) -> bool:
+    if run["host"] == socket.gethostname() and run["pid"]:
+        try:
+            os.kill(int(run["pid"]), 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:
+            return True  # someone else's live process
+        return True
+    return run["heartbeat"] is not None and time.time() - run["heartbeat"] < STALE_SECONDS
+
+
+def delete_run(path: str | Path, run_id: int) -> None:
+    """Remove a run and everything stored for it; ``LookupError`` if there is none, and
+    ``RuntimeError`` for a run whose writer is still alive."""
+    table = {r["id"]: r for r in run_table(path)}
+    if run_id not in table:
+        raise LookupError(f"no run {run_id} in {path} (its runs: "
+                          f"{', '.join(map(str, table)) or 'none'})")
+    if table[run_id]["status"] == "running":
+        raise RuntimeError(f"run {run_id} is still being written by process "
+                           f"{table[run_id]['pid']} on {table[run_id]['host']}")
+    with sqlite3.connect(path) as db:
+        db.executescript(SCHEMA)  # a store from before some tables existed
+        for name in ("variable", "point", "sample", "reference", "attempt", "own_point",
+                     "event", "calls"):
+            db.execute(f"DELETE FROM {name} WHERE run_id=?", (run_id,))
+        db.execute("DELETE FROM run WHERE id=?", (run_id,))
 
 
 def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:

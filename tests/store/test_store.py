@@ -40,3 +40,46 @@ def test_store_appends_runs(examples, tmp_path):
         simulate(spec.system, 1.0, Fixed(step), store=db, name=f"h={step}")
     assert [r[1] for r in runs(db)] == ["h=0.1", "h=0.05"]
     assert len(read_run(db, 1).times) == 11 and len(read_run(db).times) == 21
+
+
+def test_a_killed_run_is_listed_abandoned_and_can_be_deleted(examples, tmp_path):
+    import os
+    import signal
+    import sqlite3
+    import subprocess
+    import sys
+    import time
+
+    from click.testing import CliRunner
+
+    from cosimstep.cli import main
+    from cosimstep.store import run_table
+
+    db = tmp_path / "killed.db"
+    proc = subprocess.Popen([sys.executable, "-m", "cosimstep", "run",
+                             str(examples / "linear_coupled.toml"), "--until", "100",
+                             "--master", "gauss-seidel", "--controller", "fixed",
+                             "--step", "1e-6", "--out", str(db)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        points = 0
+        while time.monotonic() < deadline and points == 0:
+            time.sleep(0.2)
+            if db.exists():
+                try:
+                    with sqlite3.connect(db) as con:
+                        points = con.execute("SELECT COUNT(*) FROM point").fetchone()[0]
+                except sqlite3.OperationalError:
+                    points = 0  # the schema is still being written
+        assert points > 0
+        assert [r["status"] for r in run_table(db)] == ["running"]  # alive
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    (run,) = run_table(db)
+    assert run["status"] == "abandoned" and run["pid"] == proc.pid
+    res = CliRunner().invoke(main, ["runs", str(db)])
+    assert res.exit_code == 0 and "abandoned" in res.output
+    res = CliRunner().invoke(main, ["runs", str(db), "--delete", "1"])
+    assert res.exit_code == 0 and run_table(db) == []
