@@ -6,14 +6,21 @@ more than :func:`unpack_limit` bytes, or a large member compressed beyond :data:
 3 MB FMU holding 3 GiB of zeros took 15 s to unpack before a 0.01 s run, and a larger one fills
 the disk. The sizes are those the archive declares; ``zipfile`` reads no more than the declared
 size of a member, so a lying archive fails its CRC check instead of growing.
+
+Unpacked folders carry their owner (host and process); a process killed before it could remove
+its folders leaves them behind, and the next process that unpacks anything removes them.
 """
 
 from __future__ import annotations
 
 import os
 import posixpath
+import shutil
+import socket
+import tempfile
 import zipfile
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 DEFAULT_LIMIT = 2 * 1024**3
 """Bytes an archive may unpack into (2 GiB): far above any FMU's binaries and resources seen in
@@ -23,6 +30,49 @@ MAX_RATIO = 100.0
 refused: binaries compress 2–5×, text tables 5–20×; padding and zeros 1000×."""
 RATIO_FLOOR = 16 * 1024**2
 ENV = "COSIMSTEP_UNPACK_LIMIT"
+
+
+OWNER_FILE = ".cosimstep-owner"
+PREFIX = "cosimstep-"
+_swept = False
+
+
+def new_folder(label: str) -> Path:
+    """A fresh temporary folder for an unpacked archive, marked with the owning process so that
+    a later run can remove it if that process died without cleaning up (kill -9). The first
+    call in a process sweeps such leftovers (:func:`sweep`)."""
+    global _swept
+    if not _swept:
+        _swept = True
+        sweep()
+    folder = Path(tempfile.mkdtemp(prefix=f"{PREFIX}{label}-"))
+    (folder / OWNER_FILE).write_text(f"{socket.gethostname()} {os.getpid()}\n")
+    return folder
+
+
+def sweep(root: str | Path | None = None) -> list[Path]:
+    """Remove the unpacked folders of dead processes on this host; the removed folders."""
+    removed = []
+    host = socket.gethostname()
+    for folder in Path(root or tempfile.gettempdir()).glob(f"{PREFIX}*"):
+        try:
+            owner_host, pid = (folder / OWNER_FILE).read_text().split()
+        except (OSError, ValueError):
+            continue  # not ours, or still being created
+        if owner_host == host and not _alive(int(pid)):
+            shutil.rmtree(folder, ignore_errors=True)
+            removed.append(folder)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def unpack_limit() -> int:
@@ -64,4 +114,5 @@ def _size(n: int) -> str:
     return f"{n} B"
 
 
-__all__ = ["DEFAULT_LIMIT", "MAX_RATIO", "escapes", "size_problems", "unpack_limit"]
+__all__ = ["DEFAULT_LIMIT", "MAX_RATIO", "escapes", "new_folder", "size_problems", "sweep",
+           "unpack_limit"]

@@ -35,7 +35,6 @@ from __future__ import annotations
 import math
 import shutil
 import stat
-import tempfile
 import tomllib
 import weakref
 import xml.etree.ElementTree as ET
@@ -44,7 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cosimstep.archive import escapes, size_problems
+from cosimstep.archive import escapes, new_folder, size_problems
 from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.spec import Origin, SystemSpec, finish, parse_header
 from cosimstep.system import System
@@ -141,7 +140,7 @@ def unpack(path: Path, problems: list[Problem]) -> Path | None:
                                         f"add {SSD_NAME} (the system structure) to the archive"))
             if problems:
                 return None
-            folder = Path(tempfile.mkdtemp(prefix="cosimstep-ssp-"))
+            folder = new_folder("ssp")
             try:
                 zf.extractall(folder)
             except BaseException:

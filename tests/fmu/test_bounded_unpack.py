@@ -81,3 +81,26 @@ def test_instances_of_one_fmu_share_one_unpacked_folder(bar_fmus):
         assert folder.is_dir()  # b still uses it
         b.terminate()
     assert not folder.exists()
+
+
+def test_folders_left_by_a_killed_process_are_swept(tmp_path):
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    from cosimstep.archive import OWNER_FILE, sweep
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    host = socket.gethostname()
+    owners = {"cosimstep-gone-1": f"{host} {int(dead.stdout)}",  # its process has ended
+              "cosimstep-live-1": f"{host} {os.getpid()}",  # this process
+              "cosimstep-other-1": f"elsewhere {int(dead.stdout)}"}  # another machine's
+    for name, owner in owners.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / OWNER_FILE).write_text(owner + "\n")
+    (tmp_path / "cosimstep-unmarked").mkdir()  # not made by us: left alone
+    assert sweep(tmp_path) == [tmp_path / "cosimstep-gone-1"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "cosimstep-live-1", "cosimstep-other-1", "cosimstep-unmarked"]
