@@ -72,13 +72,20 @@ def main() -> None:
 @click.option("--seed", type=int, help="Seed of the random controller.")
 @click.option("--opt", "options", multiple=True, metavar="KEY=VALUE",
               help="Controller option, repeatable, e.g. --opt mode=reference --opt hmax=0.02.")
+@click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
+              help="Set a parameter without editing the file: a shared one (l2=0.5) or one "
+              "sub-model's (bar2.l2=0.5); repeatable.")
+@click.option("--start", "starts", multiple=True, metavar="NAME=VALUE",
+              help="Set a start value the same way (theta1=0.3 or bar1.theta1=0.3).")
 @click.option("--out", type=click.Path(dir_okay=False), help="SQLite results file "
               "(default: <system name>.db in the current directory).")
+@click.option("--no-store", is_flag=True, help="Keep the results in memory only (no file).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON summary object.")
 def run(system: str, until: float | None, master: str | None, extrapolation: int | None,
         interpolation: str | None, controller: str | None, step: float | None,
         tol: float | None, estimate: str, seed: int | None, options: tuple[str, ...],
-        out: str | None, as_json: bool) -> None:
+        params: tuple[str, ...], starts: tuple[str, ...], out: str | None, no_store: bool,
+        as_json: bool) -> None:
     """Co-simulate SYSTEM (a TOML system file or an SSP archive, .ssp).
 
     With --tol and no --controller the default adaptive controller runs.
@@ -87,11 +94,34 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
         _config_exit(ConfigurationError(
             [Problem("--until", f"must be a positive number of seconds, got {until}",
                      "e.g. --until 10")], "the command line"))
-    spec = _load(system, until)
+    overrides = {"parameters": _values(params, "--param"), "start": _values(starts, "--start")}
+    try:
+        spec = load_system(system, until, overrides)
+    except ConfigurationError as exc:
+        _config_exit(exc)
     result = _run(spec, master, extrapolation, controller, step, tol, seed, out,
-                  _options(options), interpolation, estimate)
+                  _options(options), interpolation, estimate, store=not no_store)
     _report(result, as_json)
     sys.exit(0 if result.success else EXIT_FAILED)
+
+
+def _values(pairs: tuple[str, ...], flag: str) -> dict[str, float]:
+    """``NAME=NUMBER`` pairs (exit 2 listing every malformed one)."""
+    out, bad = {}, []
+    for pair in pairs:
+        key, sep, text = pair.partition("=")
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not sep or not key.strip() or not math.isfinite(value):
+            bad.append(Problem(f"{flag} {pair}", "expected NAME=NUMBER",
+                               f"e.g. {flag} l2=0.5 or {flag} bar2.l2=0.5"))
+            continue
+        out[key.strip()] = value
+    if bad:
+        _config_exit(ConfigurationError(bad, "the command line"))
+    return out
 
 
 def _options(pairs: tuple[str, ...]) -> dict[str, Any]:
@@ -115,15 +145,16 @@ def _options(pairs: tuple[str, ...]) -> dict[str, Any]:
 def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
          controller: str | None, step: float | None, tol: float | None, seed: int | None,
          out: str | None, options: dict[str, Any] | None = None,
-         interpolation: str | None = None, estimate: str = "sum") -> SimulationResult:
+         interpolation: str | None = None, estimate: str = "sum", *,
+         store: bool = True) -> SimulationResult:
     opts = _master_options(spec, master, extrapolation, interpolation)
     settings = _controller_settings(spec, controller, step, tol, seed, options)
     name = settings.pop("name", None)
     ctrl = _controller(name, settings, spec.source)
     _check_scheme(ctrl, opts, spec)
     _check_estimate(estimate, ctrl, spec)
-    store = out or f"{spec.name}.db"
-    return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=store,
+    db = (out or f"{spec.name}.db") if store else None
+    return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=db,
                     name=spec.name, config={"source": spec.source, "system": spec.raw},
                     progress=None, estimate=estimate)
 

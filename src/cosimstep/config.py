@@ -71,21 +71,30 @@ KNOWN_TOP = {"name", "description", "until", "parameters", "start", "solver", "m
              "connections", "parameter_changes", "master", "controller", "reference"}
 
 
-def load_system(path: str | Path, until: float | None = None) -> SystemSpec:
+def load_system(path: str | Path, until: float | None = None,
+                overrides: dict[str, dict[str, Any]] | None = None) -> SystemSpec:
     """Read and check a system file; raise :class:`ConfigurationError` with every problem.
 
-    A path ending in ``.ssp`` is read as an SSP archive (:func:`cosimstep.ssp.load_ssp`).
+    ``overrides`` changes values without editing the file: ``{"parameters": {NAME: value},
+    "start": {NAME: value}}``, where NAME is a shared value (``l2``) or one sub-model's
+    (``bar2.l2``); a name nothing reads is reported like a misspelt one in the file. A path
+    ending in ``.ssp`` is read as an SSP archive (:func:`cosimstep.ssp.load_ssp`).
     """
     path = Path(path)
     src = str(path)
     if path.suffix.lower() == ".ssp":
         from cosimstep.ssp import load_ssp
 
+        if overrides and any(overrides.values()):
+            raise ConfigurationError([Problem(src, "--param and --start are for TOML systems",
+                                              "set SSP values in its parameter bindings")],
+                                     src)
         return load_ssp(path, until)
     raw = _read_toml(path)
     problems: list[Problem] = []
     loc = lambda key: f"{src}: {key}"  # noqa: E731 - tiny local formatter
     raw = _known_top(raw, loc, problems)
+    _override(raw, overrides or {}, problems)
     header = parse_header(raw, loc("[top level]"), problems)
     changes: Changes = []
     for i, c in enumerate(raw.get("parameter_changes", [])):
@@ -96,6 +105,23 @@ def load_system(path: str | Path, until: float | None = None) -> SystemSpec:
     system = _build_system(raw, header, changes, path.parent, loc, problems, used)
     return finish(raw, header, system, Origin(src, loc, path.stem, until), problems, raw,
                   changes=changes, used=used)
+
+
+def _override(raw: dict[str, Any], overrides: dict[str, dict[str, Any]],
+              problems: list[Problem]) -> None:
+    """Apply command-line values to the file's tables (``model.name`` to that model's)."""
+    models = raw.get("models", {})
+    for table, values in overrides.items():
+        for name, value in values.items():
+            model, dot, key = name.rpartition(".")
+            if not dot:
+                raw.setdefault(table, {})[name] = value
+            elif isinstance(models.get(model), dict):
+                models[model].setdefault(table, {})[key] = value
+            else:
+                flag = "--param" if table == "parameters" else "--start"
+                problems.append(Problem(f"{flag} {name}", f"no model '{model}'",
+                                        f"models: {', '.join(models) or 'none'}"))
 
 
 def _read_toml(path: Path) -> dict[str, Any]:

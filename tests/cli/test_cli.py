@@ -259,3 +259,23 @@ def test_one_bad_model_causes_no_follow_on_errors(tmp_path):
     assert res.exit_code == 2
     assert "1 problem(s)" in res.output and "models.bar1.parameters.l1" in res.output
     assert "unknown model" not in res.output
+
+
+def test_param_and_start_change_a_run_without_editing_the_file(examples, tmp_path):
+    runner = CliRunner()
+    slow = str(examples / "double_pendulum_slow.toml")
+
+    def run(*extra):
+        res = runner.invoke(main, ["run", slow, "--until", "1", "--json", "--no-store", *extra])
+        assert res.exit_code == 0, res.output
+        return json.loads(res.output)
+
+    base, shorter = run(), run("--param", "l2=0.4", "--start", "theta1=0.3")
+    assert base["store"] is None and shorter["store"] is None and not list(tmp_path.iterdir())
+    # the shared values reach the split models and the reference alike: still a small error
+    assert shorter["error"]["max_scaled"] < 1e-5
+    assert shorter["error"]["per_variable"] != base["error"]["per_variable"]
+    res = runner.invoke(main, ["run", slow, "--param", "l9=0.4", "--param", "barX.l1=1",
+                               "--no-store"])
+    assert res.exit_code == 2
+    assert "--param barX.l1: no model 'barX'" in res.output and "parameters.l9" in res.output
