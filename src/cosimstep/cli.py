@@ -80,27 +80,34 @@ def main() -> None:
 @click.option("--out", type=click.Path(dir_okay=False), help="SQLite results file "
               "(default: <system name>.db in the current directory).")
 @click.option("--no-store", is_flag=True, help="Keep the results in memory only (no file).")
+@click.option("--max-wall", type=float, metavar="S", help="Wall-time budget [s]: the run ends "
+              "timed_out (exit 1) with everything computed so far stored.")
+@click.option("--max-calls", type=int, metavar="N", help="Budget of sub-model calls, likewise.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON summary object.")
 def run(system: str, until: float | None, master: str | None, extrapolation: int | None,
         interpolation: str | None, controller: str | None, step: float | None,
         tol: float | None, estimate: str, seed: int | None, options: tuple[str, ...],
         params: tuple[str, ...], starts: tuple[str, ...], out: str | None, no_store: bool,
-        as_json: bool) -> None:
+        max_wall: float | None, max_calls: int | None, as_json: bool) -> None:
     """Co-simulate SYSTEM (a TOML system file or an SSP archive, .ssp).
 
     With --tol and no --controller the default adaptive controller runs.
     """
-    if until is not None and not (math.isfinite(until) and until > 0):
-        _config_exit(ConfigurationError(
-            [Problem("--until", f"must be a positive number of seconds, got {until}",
-                     "e.g. --until 10")], "the command line"))
+    bad = [Problem(flag, f"must be a positive number, got {value}", fix)
+           for flag, value, fix in (("--until", until, "e.g. --until 10"),
+                                    ("--max-wall", max_wall, "e.g. --max-wall 60"),
+                                    ("--max-calls", max_calls, "e.g. --max-calls 100000"))
+           if value is not None and not (math.isfinite(value) and value > 0)]
+    if bad:
+        _config_exit(ConfigurationError(bad, "the command line"))
     overrides = {"parameters": _values(params, "--param"), "start": _values(starts, "--start")}
     try:
         spec = load_system(system, until, overrides)
     except ConfigurationError as exc:
         _config_exit(exc)
     result = _run(spec, master, extrapolation, controller, step, tol, seed, out,
-                  _options(options), interpolation, estimate, store=not no_store)
+                  _options(options), interpolation, estimate, store=not no_store,
+                  budget={"max_wall": max_wall, "max_calls": max_calls})
     _report(result, as_json)
     sys.exit(0 if result.success else EXIT_FAILED)
 
@@ -146,7 +153,7 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
          controller: str | None, step: float | None, tol: float | None, seed: int | None,
          out: str | None, options: dict[str, Any] | None = None,
          interpolation: str | None = None, estimate: str = "sum", *,
-         store: bool = True) -> SimulationResult:
+         store: bool = True, budget: dict[str, Any] | None = None) -> SimulationResult:
     opts = _master_options(spec, master, extrapolation, interpolation)
     settings = _controller_settings(spec, controller, step, tol, seed, options)
     name = settings.pop("name", None)
@@ -156,7 +163,7 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
     db = (out or f"{spec.name}.db") if store else None
     return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=db,
                     name=spec.name, config={"source": spec.source, "system": spec.raw},
-                    progress=None, estimate=estimate)
+                    progress=None, estimate=estimate, **(budget or {}))
 
 
 def _controller(name: str | None, settings: dict[str, Any], source: str) -> Any:

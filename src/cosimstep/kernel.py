@@ -22,8 +22,34 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
+
+
+class BudgetExceeded(Exception):
+    """The run spent a budget its user set (wall time, calls): it ends ``timed_out``."""
+
+
+class Budget:
+    """Whole-run limits, checked by the actors as they go (``None``: no limit)."""
+
+    def __init__(self, max_wall: float | None = None, max_calls: int | None = None) -> None:
+        for name, value in (("max_wall", max_wall), ("max_calls", max_calls)):
+            if value is not None and not value > 0:
+                raise ValueError(f"`{name}` must be positive, got {value}")
+        self.max_wall, self.max_calls = max_wall, max_calls
+        self._start = time.perf_counter()
+
+    def __bool__(self) -> bool:
+        return self.max_wall is not None or self.max_calls is not None
+
+    def check(self, calls: int) -> None:
+        """Raise :class:`BudgetExceeded` if ``calls`` or the wall time since the start is over."""
+        if self.max_calls is not None and calls >= self.max_calls:
+            raise BudgetExceeded(f"the budget of {self.max_calls} calls is spent ({calls} calls)")
+        if self.max_wall is not None and time.perf_counter() - self._start >= self.max_wall:
+            raise BudgetExceeded(f"the wall-time budget of {self.max_wall:g} s is spent")
 
 
 class Actor(ABC):
@@ -89,4 +115,4 @@ class Kernel:
                 self.add(actor)
 
 
-__all__ = ["Actor", "Kernel"]
+__all__ = ["Actor", "Budget", "BudgetExceeded", "Kernel"]

@@ -20,7 +20,7 @@ import numpy as np
 from cosimstep.controllers import Controller
 from cosimstep.controllers.base import Attempt
 from cosimstep.errors import SubModelError
-from cosimstep.kernel import Actor
+from cosimstep.kernel import Actor, Budget
 from cosimstep.masters import Master, _Watchdog
 from cosimstep.store import Store
 
@@ -94,6 +94,7 @@ class _Loop(Actor):
 
     t: float
     until: float
+    budget: Budget | None = None  # whole-run limits, checked as the loop goes
 
     @property
     def time(self) -> float:
@@ -150,6 +151,8 @@ class ControllerLoop(_Loop):
         """One attempt at the next step; a step that would pass ``landing`` lands on it
         (``event``: the next time event or the end)."""
         controller, ctx, sink, t = self.controller, self.ctx, self.sink, self.t
+        if self.budget:
+            self.budget.check(int(self.runner.calls.sum()))
         h = min(self._h, self._hmax)
         if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
             h = landing - t  # land exactly on the event / end time
@@ -388,11 +391,18 @@ class FixedLoop(_Loop):
                 runner.restart()
             if n == due:
                 due = n + self._publish()
+                if self.budget:
+                    self._state = (clock, carry, segment, due)
+                    self.budget.check(self._calls())
         self._state = (clock, carry, segment, due)
 
     def last(self) -> np.ndarray:
         """The outputs at the current time."""
         return self.table[self.n]
+
+    def _calls(self) -> int:
+        lean = getattr(self.lean, "calls", None) or []
+        return int(self.runner.calls.sum()) + int(sum(lean))
 
     def jump(self, columns: slice, values: np.ndarray) -> None:
         """Some outputs jumped at the current time (an event): the point now holds the new

@@ -40,7 +40,7 @@ from cosimstep.controllers.base import StepPolicy
 from cosimstep.errors import SubModelError
 from cosimstep.events import DiscreteEventModel, Event
 from cosimstep.extrapolation import evaluate, taylor_coefficients
-from cosimstep.kernel import Actor, Kernel
+from cosimstep.kernel import Actor, Budget, Kernel
 from cosimstep.masters import Master, MasterOptions
 from cosimstep.system import CompiledSystem
 
@@ -163,6 +163,7 @@ class Multirate:
         self._requeue: list[int] = []  # sub-models rolled back since the kernel last saw them
         self.on_attempt: Any = None  # on_attempt(name, t, h, accepted): for the results store
         self._kernel = Kernel(math.inf)  # replaced by actors()
+        self.budget: Budget | None = None  # whole-run limits
         self._on_step: Any = None
         self._steppers: list[_Stepper] = []
 
@@ -765,6 +766,8 @@ class _Stepper(Actor):
 
     def act(self, limit: float) -> None:
         race, tr = self.race, self.race.tracks[self.k]
+        if race.budget:
+            race.budget.check(sum(other.calls for other in race.tracks))
         t = tr.t
         i = bisect.bisect_right(race.events, t + 1e-12 * max(1.0, abs(t)))
         landing = min(race.events[i], limit) if i < len(race.events) else limit

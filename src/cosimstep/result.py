@@ -40,7 +40,8 @@ class ModelStats:
 
 @dataclass
 class SimulationResult:
-    """What a run produced. ``status`` is ``"ok"``, ``"failed"`` or ``"interrupted"``."""
+    """What a run produced. ``status`` is ``"ok"``, ``"failed"``, ``"interrupted"`` or
+    ``"timed_out"`` (a budget of ``simulate(max_wall=, max_calls=)`` was spent)."""
 
     status: str
     message: str

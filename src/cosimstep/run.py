@@ -26,7 +26,7 @@ import numpy as np
 from cosimstep.controllers import Controller, Fixed
 from cosimstep.errors import StepSizeError, SubModelError
 from cosimstep.events import DiscreteEventModel, Event
-from cosimstep.kernel import Actor, Kernel
+from cosimstep.kernel import Actor, Budget, BudgetExceeded, Kernel
 from cosimstep.loops import ControllerLoop, FixedLoop
 from cosimstep.masters import Master, MasterOptions
 from cosimstep.reference import ErrorReport, Reference, error_report
@@ -71,6 +71,10 @@ class Scheme(ABC):
     def settle(self) -> list[Actor]:
         """Actors to run again once the kernel's heap is empty (none by default)."""
         return []
+
+    @abstractmethod
+    def limit(self, budget: Budget | None) -> None:
+        """Have the actors check the run's budget as they go."""
 
     @abstractmethod
     def close(self) -> None:
@@ -162,6 +166,10 @@ class Synchronous(Scheme):
         row = self.loop.last()
         return {k: self.compiled.models[k].indicator(self._inputs(k, row))
                 for k in self.state_events}
+
+    def limit(self, budget: Budget | None) -> None:
+        if self.loop is not None:
+            self.loop.budget = budget
 
     def fire(self, k: int, t: float) -> bool:
         """Discrete-event sub-model ``k`` has its event now (the loop stands at ``t``): it
@@ -262,6 +270,9 @@ class MultiRate(Scheme):
 
     def settle(self) -> list[Actor]:
         return self.race.settle()
+
+    def limit(self, budget: Budget | None) -> None:
+        self.race.budget = budget
 
     def close(self) -> None:
         for m in self.compiled.models:
@@ -369,9 +380,11 @@ class Run:
     """One run of a scheme: store, progress, failure capture, result."""
 
     def __init__(self, scheme: Scheme, *, store: str | Path | None, name: str,
-                 settings: dict[str, Any], progress: bool | None) -> None:
+                 settings: dict[str, Any], progress: bool | None,
+                 budget: Budget | None = None) -> None:
         self.scheme, self.store, self.name = scheme, store, name
         self.settings, self.progress = settings, progress
+        self.budget = budget
 
     def execute(self, reference: Reference | None,
                 amend: Callable[[SimulationResult], None] | None = None, *,
@@ -413,7 +426,10 @@ class Run:
             kernel = Kernel(scheme.until)
             for actor in scheme.actors(kernel, sink, bar):
                 kernel.add(actor)
+            scheme.limit(self.budget)
             kernel.run(scheme.settle)
+        except BudgetExceeded as exc:
+            return "timed_out", f"at t = {scheme.t:.9g}: {exc}", None
         except SubModelError as exc:
             return "failed", str(exc), exc
         except StepSizeError as exc:

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from cosimstep.controllers import Controller
+from cosimstep.kernel import Budget
 from cosimstep.masters import MasterOptions
 from cosimstep.reference import Reference
 from cosimstep.result import ModelStats, SimulationResult
@@ -34,6 +35,8 @@ def simulate(
     progress: bool | None = False,
     raise_on_failure: bool = False,
     estimate: str = "sum",
+    max_wall: float | None = None,
+    max_calls: int | None = None,
 ) -> SimulationResult:
     """Co-simulate ``system`` from ``t0`` to ``until``.
 
@@ -62,7 +65,11 @@ def simulate(
         again at 10× the tolerance first and takes a ninth of the difference
         (:mod:`cosimstep.estimate`; about 50 % more calls, counted in
         ``estimate_calls``), which also sees errors that decay, cancel or grow.
+    max_wall, max_calls:
+        Whole-run budgets: wall-clock seconds and sub-model calls. A run that spends one ends
+        with status ``"timed_out"`` and everything it computed so far (stored too).
     """
+    budget = Budget(max_wall, max_calls)
     if estimate not in ("sum", "rerun"):
         raise ValueError(f"`estimate` must be 'sum' or 'rerun', got {estimate!r}")
     looser = None
@@ -72,9 +79,9 @@ def simulate(
             raise ValueError(f"estimate='rerun' needs an error-controlled controller; "
                              f"'{controller.name}' has no tolerance")
         looser = _simulate(system, until, _loosened(controller), master, t0, None, None, name,
-                           None, False, False, None)
+                           None, False, False, None, budget)
     return _simulate(system, until, controller, master, t0, reference, store, name, config,
-                     progress, raise_on_failure, looser)
+                     progress, raise_on_failure, looser, budget)
 
 
 def _loosened(controller: Controller) -> Controller:
@@ -95,7 +102,7 @@ def _simulate(system: System, until: float, controller: Controller,
               master: MasterOptions | None, t0: float, reference: Reference | None,
               store: str | Path | None, name: str, config: dict[str, Any] | None,
               progress: bool | None, raise_on_failure: bool,
-              looser: SimulationResult | None) -> SimulationResult:
+              looser: SimulationResult | None, budget: Budget | None = None) -> SimulationResult:
     """:func:`simulate` once; ``looser`` is the run at 10× the tolerance for ``"rerun"``."""
     if not (math.isfinite(until) and until > t0):
         raise ValueError(f"`until` ({until}) must be finite and after t0 ({t0})")
@@ -112,7 +119,8 @@ def _simulate(system: System, until: float, controller: Controller,
     scheme = scheme_for(compiled, t0, until, controller, master, events)
     settings = {"t0": t0, "until": until, "master": vars(master),
                 "controller": controller.describe(), **(config or {})}
-    run = Run(scheme, store=store, name=name, settings=settings, progress=progress)
+    run = Run(scheme, store=store, name=name, settings=settings, progress=progress,
+              budget=budget)
     return run.execute(reference, lambda r: _rerun_estimate(r, looser, controller, events),
                        raise_on_failure=raise_on_failure)
 

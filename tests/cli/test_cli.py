@@ -279,3 +279,27 @@ def test_param_and_start_change_a_run_without_editing_the_file(examples, tmp_pat
                                "--no-store"])
     assert res.exit_code == 2
     assert "--param barX.l1: no model 'barX'" in res.output and "parameters.l9" in res.output
+
+
+def test_budgets_end_a_run_timed_out_with_its_results_stored(examples, tmp_path):
+    from cosimstep.store import read_run
+
+    slow = str(examples / "double_pendulum_slow.toml")
+    cases = [(["--max-calls", "5000"], 5000, 512 + 2),  # fixed: checked every <= 256 steps
+             (["--tol", "1e-6", "--max-calls", "800"], 800, 8),  # checked every attempt
+             (["--master", "multirate", "--tol", "1e-6", "--max-calls", "800"], 800, 20)]
+    for i, (extra, budget, slack) in enumerate(cases):
+        db = tmp_path / f"b{i}.db"
+        res = CliRunner().invoke(main, ["run", slow, "--json", "--out", str(db), *extra])
+        out = json.loads(res.output)
+        assert res.exit_code == 1 and out["status"] == "timed_out", res.output
+        assert "calls is spent" in out["message"]
+        assert budget <= out["calls_total"] <= budget + slack, (extra, out["calls_total"])
+        stored = read_run(db)
+        assert stored.status == "timed_out" and 0 < stored.times[-1] < 10.0
+        assert stored.times[-1] == pytest.approx(out["t_end"])  # every step so far is stored
+    res = CliRunner().invoke(main, ["run", slow, "--tol", "1e-6", "--max-wall", "0.3", "--json",
+                                    "--no-store"])
+    out = json.loads(res.output)
+    assert out["status"] == "timed_out" and "wall-time budget of 0.3 s" in out["message"]
+    assert out["wall_s"] < 3.0
