@@ -13,10 +13,12 @@ and says what it produced:
 from __future__ import annotations
 
 import contextlib
+import signal
 import sys
+import threading
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -399,7 +401,8 @@ class Run:
         wall0 = time.perf_counter()
         bar = _progress(self.progress, scheme.t0, scheme.until)
         try:
-            status, message, failure = self._drive(sink, bar)
+            with _terminate_as_interrupt():
+                status, message, failure = self._drive(sink, bar)
         finally:
             try:
                 scheme.close()
@@ -436,6 +439,8 @@ class Run:
             return "failed", f"at t = {scheme.t:.9g}: {exc}", exc
         except Exception as exc:
             return "failed", f"at t = {scheme.t:.9g}: {type(exc).__name__}: {exc}", exc
+        except Terminated as exc:
+            return "interrupted", f"terminated (SIGTERM) at t = {scheme.t:.9g}", exc
         except KeyboardInterrupt as exc:
             return "interrupted", f"interrupted by the user at t = {scheme.t:.9g}", exc
         return "ok", "completed", None
@@ -462,6 +467,28 @@ class Run:
             store=str(self.store) if self.store is not None else None, error=err,
             reference=ref_values, models=out.models, error_estimate=out.error_estimate,
             events=out.events)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM during a run: ended like Ctrl-C (status ``interrupted``, results kept)."""
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """While a run goes on in the main thread, SIGTERM (what a batch system or ``kill`` sends)
+    ends it the way Ctrl-C does; the previous handler comes back afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum: int, frame: Any) -> None:
+        raise Terminated
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _progress(progress: bool | None, t0: float, until: float) -> Any:

@@ -83,3 +83,35 @@ def test_a_killed_run_is_listed_abandoned_and_can_be_deleted(examples, tmp_path)
     assert res.exit_code == 0 and "abandoned" in res.output
     res = CliRunner().invoke(main, ["runs", str(db), "--delete", "1"])
     assert res.exit_code == 0 and run_table(db) == []
+
+
+def test_sigterm_ends_a_run_interrupted_with_its_results(examples, tmp_path):
+    import signal
+    import sqlite3
+    import subprocess
+    import sys
+    import time
+
+    from cosimstep.store import read_run
+
+    db = tmp_path / "term.db"
+    proc = subprocess.Popen([sys.executable, "-m", "cosimstep", "run",
+                             str(examples / "linear_coupled.toml"), "--until", "100",
+                             "--master", "gauss-seidel", "--controller", "fixed",
+                             "--step", "1e-6", "--out", str(db)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline, points = time.monotonic() + 60, 0
+    while time.monotonic() < deadline and points == 0:
+        time.sleep(0.2)
+        try:
+            with sqlite3.connect(db) as con:
+                points = con.execute("SELECT COUNT(*) FROM point").fetchone()[0]
+        except sqlite3.OperationalError:
+            points = 0
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1, err
+    assert "Traceback" not in err
+    stored = read_run(db)
+    assert stored.status == "interrupted" and "SIGTERM" in stored.message
+    assert len(stored.times) >= points and stored.summary["t_end"] == stored.times[-1]
