@@ -140,8 +140,8 @@ class Store:
 
     def flush(self) -> None:
         db = self._db
-        db.executemany("INSERT INTO point VALUES (?, ?, ?)", self._points)
-        db.executemany("INSERT INTO sample VALUES (?, ?, ?, ?)", self._samples)
+        db.executemany("INSERT OR REPLACE INTO point VALUES (?, ?, ?)", self._points)
+        db.executemany("INSERT OR REPLACE INTO sample VALUES (?, ?, ?, ?)", self._samples)
         db.executemany("INSERT INTO attempt VALUES (?, ?, ?, ?, ?, ?, ?)", self._attempts)
         db.execute("UPDATE run SET heartbeat=? WHERE id=?", (time.time(), self.run_id))
         db.commit()

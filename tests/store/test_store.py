@@ -115,3 +115,29 @@ def test_sigterm_ends_a_run_interrupted_with_its_results(examples, tmp_path):
     stored = read_run(db)
     assert stored.status == "interrupted" and "SIGTERM" in stored.message
     assert len(stored.times) >= points and stored.summary["t_end"] == stored.times[-1]
+
+
+def test_an_interrupt_inside_a_store_write_loses_nothing_and_raises_nothing(examples, tmp_path,
+                                                                             monkeypatch):
+    # Ctrl-C can land between handing rows to the store and noting them as handed: the rows
+    # are then handed again when the run ends (the UNIQUE-constraint crash of issue 19)
+    import cosimstep
+    from cosimstep.store import Store, read_run
+
+    original, seen = Store.add_points, []
+
+    def interrupted_write(self, first_step, times, rows):
+        original(self, first_step, times, rows)
+        seen.append(first_step)
+        if len(seen) == 3:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Store, "add_points", interrupted_write)
+    spec = cosimstep.load_system(examples / "double_pendulum_slow.toml")
+    db = tmp_path / "int.db"
+    result = cosimstep.simulate(spec.system, 10.0, cosimstep.Fixed(1e-4), store=db)
+    assert result.status == "interrupted"
+    stored = read_run(db)
+    assert stored.status == "interrupted"
+    assert np.array_equal(stored.times, result.times)  # every step, once
+    assert np.array_equal(stored.values, result.values)
