@@ -39,9 +39,13 @@ class Event:
     source: str
     kind: str
     payload: dict[str, float]
+    late: bool = False
+    """A state event fired at the end of the step that crossed it, not located (the
+    controller keeps no saved state to go back to, e.g. a fixed step): up to a step late."""
 
     def to_dict(self) -> dict[str, Any]:
-        return {"t": self.t, "source": self.source, "kind": self.kind, "payload": self.payload}
+        return {"t": self.t, "source": self.source, "kind": self.kind, "payload": self.payload,
+                "late": self.late}
 
 
 class DiscreteEventModel(SubModel):

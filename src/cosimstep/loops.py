@@ -122,7 +122,7 @@ class ControllerLoop(_Loop):
         # state events (see _crossing_inside): watch(row) is the largest indicator of the
         # state-event sub-models (an event when it reaches 0 from below), fire(t) fires them
         self.watch: Callable[[np.ndarray], float] | None = None
-        self.fire: Callable[[float], None] | None = None
+        self.fire: Callable[[float, bool], None] | None = None
         self.located = 0  # state events located inside a step
         self._located = math.nan  # the time a located crossing lands on
         self._h = 0.0  # the step the controller proposed last
@@ -186,7 +186,10 @@ class ControllerLoop(_Loop):
             self.bar.update(h)
         if self.watch is not None and (located or self.watch(attempt.y) >= 0.0):
             self._located = math.nan
-            self.fire(self.t)  # type: ignore[misc]
+            # not located: no saved state to go back to, a step already at the time
+            # tolerance, or an indicator already at 0 when the step began
+            late = not located and h > EVENT_TOL * max(1.0, abs(t))
+            self.fire(self.t, late)  # type: ignore[misc]
 
     def _crossing_inside(self, t: float, h: float, y: np.ndarray) -> bool:
         """Whether an accepted step crossed a state event and was undone to be redone up to the

@@ -102,6 +102,7 @@ class SimulationResult:
             "store": self.store,
         }
         out["events"] = [e.to_dict() for e in self.events]
+        out["events_late"] = sum(e.late for e in self.events)  # state events not located
         out["error_estimate"] = self.error_estimate
         out["error_estimate_calls"] = self.estimate_calls
         if self.error is not None:

@@ -13,6 +13,7 @@ and says what it produced:
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import signal
 import sys
 import threading
@@ -139,7 +140,7 @@ class Synchronous(Scheme):
         models = self.compiled.models
         return max(models[k].indicator(self._inputs(k, row)) for k in self.state_events)
 
-    def _fire_crossed(self, t: float) -> None:
+    def _fire_crossed(self, t: float, late: bool = False) -> None:
         """Fire the state-event sub-models whose indicator reached 0 at ``t`` (the one located
         there fires even if rounding left it a hair below), then those that the new outputs
         push past 0 at the same time — at most :attr:`max_events` in all, then the run fails
@@ -159,6 +160,8 @@ class Synchronous(Scheme):
                                    "add hysteresis or break the cycle)")
             for k in due:
                 self.fire(k, t)
+                if late:
+                    self.fired[-1] = dataclasses.replace(self.fired[-1], late=True)
             # a jump may carry another indicator past 0 now: strictly, so that a monitor left
             # exactly on its level (indicator 0 after firing) does not fire back at once
             due = [k for k, g in self._indicators().items() if g > 0.0]

@@ -12,7 +12,8 @@ Tables (one file can hold many runs)::
     calls(run_id, model, calls, time_in_model_s)
     own_point(run_id, variable_id, seq, t, value)      -- multi-rate: each output at its own
                                                           sub-model's communication points
-    event(run_id, seq, t, source, kind, payload_json)  -- events of discrete-event sub-models
+    event(run_id, seq, t, source, kind, payload_json, late)  -- discrete events (late: a state
+                                                          event fired a step late, not located)
 
 Rows are buffered and committed at least every ``flush_seconds`` of wall time, so a run that is
 interrupted or crashes keeps what it computed up to the last commit.
@@ -55,7 +56,7 @@ CREATE TABLE IF NOT EXISTS own_point(
     PRIMARY KEY(run_id, variable_id, seq)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS event(
     run_id INTEGER, seq INTEGER, t REAL, source TEXT, kind TEXT, payload_json TEXT,
-    PRIMARY KEY(run_id, seq)) WITHOUT ROWID;
+    late INTEGER, PRIMARY KEY(run_id, seq)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS calls(
     run_id INTEGER, model TEXT, calls INTEGER, time_in_model_s REAL,
     PRIMARY KEY(run_id, model));
@@ -167,9 +168,10 @@ class Store:
 
     def add_events(self, events: Sequence[Any]) -> None:
         """The run's events (:class:`cosimstep.events.Event`), in time order."""
-        self._db.executemany("INSERT INTO event VALUES (?, ?, ?, ?, ?, ?)",
+        self._db.executemany("INSERT INTO event VALUES (?, ?, ?, ?, ?, ?, ?)",
                              [(self.run_id, i, float(e.t), e.source, e.kind,
-                               json.dumps(e.payload)) for i, e in enumerate(events)])
+                               json.dumps(e.payload), int(e.late))
+                              for i, e in enumerate(events)])
 
     def finish(self, status: str, message: str, t_end: float, wall_s: float,
                summary: dict[str, Any], calls: dict[str, int],
@@ -297,9 +299,10 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
         att = db.execute("SELECT model, t, h, accepted FROM attempt WHERE run_id=? ORDER BY seq",
                          (run_id,)).fetchall()
         own_points = _read_own_points(db, run_id, var)
-        events = [{"t": t, "source": src, "kind": kind, "payload": json.loads(payload)}
-                  for t, src, kind, payload in db.execute(
-                      "SELECT t, source, kind, payload_json FROM event WHERE run_id=? "
+        events = [{"t": t, "source": src, "kind": kind, "payload": json.loads(payload),
+                   "late": bool(late)}
+                  for t, src, kind, payload, late in db.execute(
+                      "SELECT t, source, kind, payload_json, late FROM event WHERE run_id=? "
                       "ORDER BY seq", (run_id,))]
     finally:
         db.close()

@@ -40,7 +40,8 @@ def test_steps_land_on_the_events_and_nothing_is_extrapolated_across(controller,
     assert [(e.t, e.source, e.kind, e.payload) for e in result.events] == [
         (0.25, "tt", "timetable", {"u": 1.0}), (0.7, "tt", "timetable", {"u": 3.0})]
     summary = result.summary()["events"]
-    assert summary[1] == {"t": 0.7, "source": "tt", "kind": "timetable", "payload": {"u": 3.0}}
+    assert summary[1] == {"t": 0.7, "source": "tt", "kind": "timetable", "payload": {"u": 3.0},
+                          "late": False}
 
 
 def test_fixed_step_call_count_with_events():
@@ -208,6 +209,7 @@ def test_a_state_event_is_located_inside_the_step():
     # x = t up to 1, then 2 - t: the alarm rises at x = 0.5 and falls below 0.5 - 0.2 at 1.7
     assert abs(crossings[0][0] - 0.5) < 1e-10 and abs(crossings[1][0] - 1.7) < 1e-10
     assert abs(result["z.x"][-1] - 1.2) < 1e-9  # the alarm was on from 0.5 to 1.7
+    assert result.summary()["events_late"] == 0
 
 
 def test_without_rollback_a_state_event_fires_late_by_at_most_a_step():
@@ -217,6 +219,8 @@ def test_without_rollback_a_state_event_fires_late_by_at_most_a_step():
     crossings = [e.t for e in result.events if e.source == "mon"]
     assert len(crossings) == 2
     delays = [crossings[0] - 0.5, crossings[1] - 1.7]
+    assert all(e.late for e in result.events if e.source == "mon")  # and it says so
+    assert result.summary()["events_late"] == 2
     assert all(0.0 <= d < h for d in delays), delays
     assert abs(result["z.x"][-1] - (1.2 - delays[0] + delays[1])) < 1e-9
 
