@@ -46,6 +46,7 @@ class _Context:
         self.predicted = master.predicted
         self.consumed = master.consumed
         self.held = master.held
+        self.discrete = master.discrete
         self._segment = 0  # index of the first point after the last time event
         self.first_token: Any = None  # the first state saved during the current attempt
 
@@ -74,7 +75,7 @@ class _Context:
 
     def defect(self) -> tuple[np.ndarray, np.ndarray]:
         y = self.master.last
-        return y - self.master.assumed, self.master.predicted
+        return y - self.master.assumed, self.master.predicted & ~self.master.discrete
 
     def derivatives(self) -> np.ndarray | None:
         return self.master.derivatives()
@@ -122,7 +123,7 @@ class ControllerLoop(_Loop):
         # state events (see _crossing_inside): watch(row) is the largest indicator of the
         # state-event sub-models (an event when it reaches 0 from below), fire(t) fires them
         self.watch: Callable[[np.ndarray], float] | None = None
-        self.fire: Callable[[float, bool], None] | None = None
+        self.fire: Callable[[float, bool, np.ndarray], None] | None = None
         self.located = 0  # state events located inside a step
         self._located = math.nan  # the time a located crossing lands on
         self._h = 0.0  # the step the controller proposed last
@@ -167,8 +168,12 @@ class ControllerLoop(_Loop):
         if not attempt.accepted:
             self.rejected += 1
             return
-        if self.watch is not None and self._crossing_inside(t, h, attempt.y):
-            return  # back at t; the next attempt ends on the crossing
+        crossed = False
+        if self.watch is not None:
+            if self._crossing_inside(t, h, attempt.y):
+                return  # back at t; the next attempt ends on the crossing
+            crossed = self.watch(attempt.y) >= 0.0  # judged against the point at t
+        before = ctx.rows[-1]
         located = t + h == self._located
         clock = self._clock
         clock.add(h)
@@ -184,12 +189,12 @@ class ControllerLoop(_Loop):
             sink.add_point(len(self.steps), t, attempt.y)
         if self.bar is not None:
             self.bar.update(h)
-        if self.watch is not None and (located or self.watch(attempt.y) >= 0.0):
+        if self.watch is not None and (located or crossed):
             self._located = math.nan
             # not located: no saved state to go back to, a step already at the time
             # tolerance, or an indicator already at 0 when the step began
             late = not located and h > EVENT_TOL * max(1.0, abs(t))
-            self.fire(self.t, late)  # type: ignore[misc]
+            self.fire(self.t, late, before)  # type: ignore[misc]
 
     def _crossing_inside(self, t: float, h: float, y: np.ndarray) -> bool:
         """Whether an accepted step crossed a state event and was undone to be redone up to the
@@ -236,7 +241,7 @@ class ControllerLoop(_Loop):
         """The outputs at the current time."""
         return self.ctx.rows[-1]
 
-    def jump(self, columns: slice, values: np.ndarray) -> None:
+    def jump(self, columns: slice | np.ndarray, values: np.ndarray) -> None:
         """Some outputs jumped at the current time (an event): the point now holds the new
         values, and extrapolation starts again from it (a jump is not a trend)."""
         self.ctx.rows[-1] = self.ctx.rows[-1].copy()
@@ -407,7 +412,7 @@ class FixedLoop(_Loop):
         lean = getattr(self.lean, "calls", None) or []
         return int(self.runner.calls.sum()) + int(sum(lean))
 
-    def jump(self, columns: slice, values: np.ndarray) -> None:
+    def jump(self, columns: slice | np.ndarray, values: np.ndarray) -> None:
         """Some outputs jumped at the current time (an event): the point now holds the new
         values, and extrapolation starts again from it."""
         assert self._state is not None

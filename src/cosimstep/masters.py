@@ -250,6 +250,10 @@ class Master:
             self.consumed[np.asarray(src, dtype=int)] = True
             if self._deriv_order[k] == 0:
                 self.held[np.asarray(src, dtype=int)] = True
+        # piecewise-constant outputs (Port.discrete): held over every step, never extrapolated
+        self.discrete = np.array([p.discrete for m in system.models for p in m.outputs],
+                                 dtype=bool)
+        self._hold = np.flatnonzero(self.discrete)
         self.assumed = np.zeros(system.n_outputs)
         self.last = np.zeros(system.n_outputs)
 
@@ -338,6 +342,7 @@ class Master:
         gauss_seidel = self.options.name == "gauss-seidel"
         if end is None and len(times) == 1 and p > 0 and self._dy0 is not None:
             coef[1] = self._dy0  # start-up: grey-box slopes instead of a first-order hold
+        self._held_discrete(coef, y_new)
         self.assumed = evaluate(coef, h)
         for k in self.sequence:
             self._step_model(k, t, h, coef)
@@ -354,10 +359,19 @@ class Master:
                 pts = [*times[-p:], t + h] if p > 0 else [t + h]
                 vals = np.vstack([history[-p:, out], y_new[out]]) if p > 0 else y_new[None, out]
                 coef[:, out] = taylor_coefficients(pts, vals, t, p)
+                self._held_discrete(coef, history[-1])
         self._settle_feedthrough(t + h, y_new)
         self._check_finite(range(len(self.system.models)), t, y_new, h)
         self.last = y_new
         return y_new
+
+    def _held_discrete(self, coef: np.ndarray, row: np.ndarray) -> None:
+        """Discrete outputs keep their value at the step's start (``row``) over the step: a
+        curve through a jump would smear it over the steps around it, and a step that ends on
+        a change must not see the new value before its end."""
+        if self._hold.size:
+            coef[0, self._hold] = row[self._hold]
+            coef[1:, self._hold] = 0.0
 
     def restart(self) -> None:
         """After a time event: grey-box slopes (if any) for the first step of the new segment."""

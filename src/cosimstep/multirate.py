@@ -795,6 +795,10 @@ def refusals(models: dict[str, Any], interpolation: str | None = None, *,
     problems += [f"'{n}' has state events (not yet supported by multirate)"
                  for n, m in models.items() if isinstance(m, DiscreteEventModel)
                  and type(m).indicator is not DiscreteEventModel.indicator]
+    problems += [f"'{n}' has discrete outputs ({', '.join(p.name for p in m.outputs if p.discrete)}"
+                 "; their changes are events, not yet supported by multirate)"
+                 for n, m in models.items() if not isinstance(m, DiscreteEventModel)
+                 and any(p.discrete for p in m.outputs)]
     if interpolation == "hermite":
         problems += [f"'{n}' gives no output derivatives (needed by 'hermite')"
                      for n, m in models.items() if not m.capabilities.provides_derivatives]

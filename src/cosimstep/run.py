@@ -109,6 +109,13 @@ class Synchronous(Scheme):
         self.state_events = [k for k, m in enumerate(compiled.models)
                              if isinstance(m, DiscreteEventModel)
                              and type(m).indicator is not DiscreteEventModel.indicator]
+        # continuous sub-models with discrete outputs: a change of one is an event too
+        self.changing = {k: [sl.start + i for i, p in enumerate(m.outputs) if p.discrete]
+                         for k, (m, sl) in enumerate(zip(compiled.models, compiled.output_slices))
+                         if not isinstance(m, DiscreteEventModel)
+                         and any(p.discrete for p in m.outputs)}
+        self._discrete_cols = np.array(sorted(j for c in self.changing.values() for j in c),
+                                       dtype=int)
 
     @property
     def t(self) -> float:
@@ -117,13 +124,14 @@ class Synchronous(Scheme):
     def actors(self, kernel: Kernel, sink: Store | None, bar: Any) -> list[Actor]:
         # The fixed step needs no controller, context or attempt per step: a lean loop gives
         # the same run (a subclass of Fixed may change attempt(), so only Fixed qualifies).
-        if type(self.controller) is Fixed and not self.state_events:
+        watched = bool(self.state_events or self.changing)
+        if type(self.controller) is Fixed and not watched:
             self.loop = FixedLoop(self.runner, self.controller.step, self.t0, self.until,
                                   self.events, sink, bar, self.master.call_timeout)
         else:
             self.loop = ControllerLoop(self.runner, self.controller, self.t0, self.until,
                                        self.events, sink, bar)
-        if self.state_events and isinstance(self.loop, ControllerLoop):
+        if watched and isinstance(self.loop, ControllerLoop):
             self.loop.watch, self.loop.fire = self._watch, self._fire_crossed
         discrete = [_EventActor(self, k) for k, m in enumerate(self.compiled.models)
                     if isinstance(m, DiscreteEventModel)]
@@ -136,19 +144,45 @@ class Synchronous(Scheme):
         return compiled.a[k] * row[compiled.src[k]] + compiled.b[k]
 
     def _watch(self, row: np.ndarray) -> float:
-        """The largest state-event indicator at a point (an event where it reaches 0)."""
+        """The largest state-event indicator at a point (an event where it reaches 0); a
+        discrete output that differs from the last accepted point's counts as +1, else -1."""
         models = self.compiled.models
-        return max(models[k].indicator(self._inputs(k, row)) for k in self.state_events)
+        g = max((models[k].indicator(self._inputs(k, row)) for k in self.state_events),
+                default=-1.0)
+        cols = self._discrete_cols
+        if cols.size and g < 0.0:
+            assert self.loop is not None
+            g = 1.0 if bool(np.any(row[cols] != self.loop.last()[cols])) else -1.0
+        return g
 
-    def _fire_crossed(self, t: float, late: bool = False) -> None:
+    def _fire_changed(self, t: float, before: np.ndarray, late: bool) -> bool:
+        """Record the discrete outputs that changed over the last step as events of their
+        sub-models, and restart extrapolation there; whether any did."""
+        assert self.loop is not None
+        row = self.loop.last()
+        changed = False
+        for k, cols in self.changing.items():
+            if np.array_equal(row[cols], before[cols]):
+                continue
+            changed = True
+            names = [self.compiled.output_names[j].split(".", 1)[-1] for j in cols]
+            self.loop.jump(np.asarray(cols), row[cols])
+            self.fired.append(Event(t, self.compiled.names[k], "change",
+                                    {n: float(v) for n, v in zip(names, row[cols])}, late))
+        return changed
+
+    def _fire_crossed(self, t: float, late: bool = False,
+                      before: np.ndarray | None = None) -> None:
         """Fire the state-event sub-models whose indicator reached 0 at ``t`` (the one located
         there fires even if rounding left it a hair below), then those that the new outputs
         push past 0 at the same time — at most :attr:`max_events` in all, then the run fails
-        naming the sub-models still firing (an endless event loop)."""
+        naming the sub-models still firing (an endless event loop). ``before`` is the point
+        the step started from: discrete outputs that differ from it are events first."""
         assert self.loop is not None
+        changed = self._fire_changed(t, before, late) if before is not None else False
         values = self._indicators()
-        top = max(values.values())
-        due = [k for k, g in values.items() if g >= 0.0 or g == top]
+        top = max(values.values(), default=0.0)
+        due = [k for k, g in values.items() if g >= 0.0 or (g == top and not changed)]
         fired, involved = 0, set()
         while due:
             fired += len(due)

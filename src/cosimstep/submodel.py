@@ -29,12 +29,18 @@ class Port:
     ``start`` is the value an input takes when nothing is connected to it, and the value an output
     has before the first step. ``None`` means "no start value": an unconnected input without a
     start value is a configuration error.
+
+    ``discrete`` marks a piecewise-constant output (a count, a switch, an impulse delivered so
+    far): its receivers hold it over a step, it is never extrapolated or interpolated, and a
+    change of it inside a step is an *event* the synchronous master locates by rollback
+    (:mod:`cosimstep.loops`), as it locates a threshold crossing.
     """
 
     name: str
     unit: str = "1"
     start: float | None = None
     description: str = ""
+    discrete: bool = False
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,7 @@ class StepContext(Protocol):
     predicted: np.ndarray  # outputs some receiver uses extrapolated (not yet computed)
     consumed: np.ndarray  # outputs some sub-model reads as an input
     held: np.ndarray  # outputs some receiver holds constant over a step (no input derivatives)
+    discrete: np.ndarray  # piecewise-constant outputs, held by every receiver (Port.discrete)
 
     def step(self, t: float, h: float, *, order: int | None = None,
              end: np.ndarray | None = None,

@@ -216,7 +216,8 @@ class PredictorCorrector(_PolicyController):
         corrector; an output a receiver reads fresh (Gauss–Seidel) is interpolated through the
         new value of the same pass.
         """
-        cols = np.flatnonzero(ctx.consumed)
+        # a discrete output is held by every receiver in both runs: it moves no one
+        cols = np.flatnonzero(ctx.consumed & ~ctx.discrete)
         if cols.size == 0:
             return 0.0
         if len(ctx.times) < q + 2:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from functools import partial
 
 from cosimstep.adapters.ode import InternalSolver, ParameterSchedule
-from cosimstep.models import linear, pendulum, thermal
+from cosimstep.models import bouncing, linear, pendulum, thermal
 from cosimstep.submodel import SubModel
 
 Builder = Callable[[ParameterSchedule, Mapping[str, float], InternalSolver | None], SubModel]
@@ -66,3 +66,13 @@ register(ModelKind("thermal_loop.coolant", "coolant temperature Tc (inputs q, Th
                    thermal.default_parameters(), thermal.START, thermal.coolant))
 register(ModelKind("thermal_loop.load", "heat load temperature Th (input Tc)",
                    thermal.default_parameters(), thermal.START, thermal.load))
+
+register(ModelKind("bouncing_ball", "bouncing ball whose impacts drive a spring-damper "
+                   "(problem 8), monolithic; contact times in closed form",
+                   bouncing.default_parameters(), bouncing.START, bouncing.monolithic))
+register(ModelKind("bouncing_ball.ball", "the ball: h, v and the impulse J given to the ground "
+                   "(discrete); contacts handled inside its steps",
+                   bouncing.default_parameters(), bouncing.START, bouncing.ball))
+register(ModelKind("bouncing_ball.damper", "spring-damper under the ground: M x'' = -k x - c x' "
+                   "+ dJ/dt (input J)", bouncing.default_parameters(), bouncing.START,
+                   bouncing.damper))
