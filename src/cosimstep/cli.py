@@ -24,7 +24,7 @@ from cosimstep.controllers import (
     make_controller,
 )
 from cosimstep.errors import ConfigurationError, Problem
-from cosimstep.masters import MASTERS, MasterOptions
+from cosimstep.masters import MASTERS, RESYNC, MasterOptions
 from cosimstep.simulate import SimulationResult, simulate
 
 EXIT_FAILED, EXIT_CONFIG = 1, 2
@@ -56,6 +56,9 @@ def main() -> None:
 @click.option("--extrapolation", type=click.IntRange(0, 2), help="Input extrapolation order.")
 @click.option("--interpolation", help="Multirate: how partners' trajectories are read "
               "(hold, linear, pchip, spline-not-a-knot, ...; default: local cubic).")
+@click.option("--resync", type=click.Choice(RESYNC), help="Multirate: after an event found "
+              "inside a step, roll back only the sub-models it reaches (partial, default) or "
+              "every sub-model past it (complete).")
 @click.option("--controller", type=click.Choice(sorted(CONTROLLERS)), help="Step controller.")
 @click.option("--step", type=float, help="Fixed step (controller fixed) or initial step [s].")
 @click.option("--tol", type=float,
@@ -85,10 +88,11 @@ def main() -> None:
 @click.option("--max-calls", type=int, metavar="N", help="Budget of sub-model calls, likewise.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON summary object.")
 def run(system: str, until: float | None, master: str | None, extrapolation: int | None,
-        interpolation: str | None, controller: str | None, step: float | None,
-        tol: float | None, estimate: str, seed: int | None, options: tuple[str, ...],
-        params: tuple[str, ...], starts: tuple[str, ...], out: str | None, no_store: bool,
-        max_wall: float | None, max_calls: int | None, as_json: bool) -> None:
+        interpolation: str | None, resync: str | None, controller: str | None,
+        step: float | None, tol: float | None, estimate: str, seed: int | None,
+        options: tuple[str, ...], params: tuple[str, ...], starts: tuple[str, ...],
+        out: str | None, no_store: bool, max_wall: float | None, max_calls: int | None,
+        as_json: bool) -> None:
     """Co-simulate SYSTEM (a TOML system file or an SSP archive, .ssp).
 
     With --tol and no --controller the default adaptive controller runs.
@@ -107,7 +111,7 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
         _config_exit(exc)
     result = _run(spec, master, extrapolation, controller, step, tol, seed, out,
                   _options(options), interpolation, estimate, store=not no_store,
-                  budget={"max_wall": max_wall, "max_calls": max_calls})
+                  budget={"max_wall": max_wall, "max_calls": max_calls}, resync=resync)
     _report(result, as_json)
     sys.exit(0 if result.success else EXIT_FAILED)
 
@@ -153,8 +157,9 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
          controller: str | None, step: float | None, tol: float | None, seed: int | None,
          out: str | None, options: dict[str, Any] | None = None,
          interpolation: str | None = None, estimate: str = "sum", *,
-         store: bool = True, budget: dict[str, Any] | None = None) -> SimulationResult:
-    opts = _master_options(spec, master, extrapolation, interpolation)
+         store: bool = True, budget: dict[str, Any] | None = None,
+         resync: str | None = None) -> SimulationResult:
+    opts = _master_options(spec, master, extrapolation, interpolation, resync)
     settings = _controller_settings(spec, controller, step, tol, seed, options)
     name = settings.pop("name", None)
     ctrl = _controller(name, settings, spec.source)
@@ -192,12 +197,13 @@ def _plain_type_error(exc: TypeError) -> str:
 
 
 def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | None,
-                    interpolation: str | None) -> MasterOptions:
+                    interpolation: str | None, resync: str | None = None) -> MasterOptions:
     """The file's ``[master]`` with the command line's choices on top (exit 2 if invalid)."""
     opts = spec.master
     opts = MasterOptions(master or opts.name,
                          opts.extrapolation if extrapolation is None else extrapolation,
-                         opts.order, opts.call_timeout, interpolation or opts.interpolation)
+                         opts.order, opts.call_timeout, interpolation or opts.interpolation,
+                         resync or opts.resync)
     problems = [Problem("master", p, "see `cosimstep run --help`") for p in opts.problems()]
     if problems:
         _config_exit(ConfigurationError(problems, spec.source))

@@ -34,6 +34,7 @@ from cosimstep.extrapolation import (
 from cosimstep.system import CompiledSystem
 
 MASTERS = ("jacobi", "gauss-seidel", "multirate")
+RESYNC = ("partial", "complete")
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,11 @@ class MasterOptions:
     interpolation:
         Multi-rate only: how partners' stored trajectories are read (a method of
         :mod:`cosimstep.interpolation`; ``None``: the built-in local cubic, fastest).
+    resync:
+        Multi-rate only: who goes back when a sub-model finds an event inside a step it has
+        taken while others ran past that time (thesis 4.3.5, fig. 85). ``"partial"`` (default):
+        only the sub-models the event's outputs reach through the connections; ``"complete"``:
+        every sub-model past the event.
     """
 
     name: str = "gauss-seidel"
@@ -63,6 +69,7 @@ class MasterOptions:
     order: tuple[str, ...] | None = None
     call_timeout: float | None = None
     interpolation: str | None = None
+    resync: str = "partial"
 
     def problems(self) -> list[str]:
         out = []
@@ -80,6 +87,8 @@ class MasterOptions:
                            f"{', '.join(INTERPOLATORS)}")
             elif self.name != "multirate":
                 out.append("interpolation applies to the multirate master only")
+        if self.resync not in RESYNC:
+            out.append(f"unknown resync '{self.resync}'; choose one of {', '.join(RESYNC)}")
         return out
 
 

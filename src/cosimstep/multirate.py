@@ -41,6 +41,7 @@ from cosimstep.errors import SubModelError
 from cosimstep.events import DiscreteEventModel, Event
 from cosimstep.extrapolation import evaluate, taylor_coefficients
 from cosimstep.kernel import Actor, Budget, Kernel
+from cosimstep.loops import EVENT_TOL
 from cosimstep.masters import Master, MasterOptions
 from cosimstep.system import CompiledSystem
 
@@ -134,7 +135,7 @@ class Multirate:
 
     def __init__(self, system: CompiledSystem, policy: StepPolicy, h0: float,
                  order: int = 2, interpolation: str | None = None,
-                 call_timeout: float | None = None) -> None:
+                 call_timeout: float | None = None, resync: str = "partial") -> None:
         problems = refusals(dict(zip(system.names, system.models)), interpolation)
         if problems:
             raise ValueError("the multirate master re-runs steps and interpolates trajectories; "
@@ -151,14 +152,26 @@ class Multirate:
         for k, sl in enumerate(system.output_slices):
             self.owner[sl] = k
         self.consumers: list[list[int]] = [[] for _ in system.models]
-        for k, src in enumerate(system.src):
-            for j in np.asarray(src, dtype=int):
-                if k not in self.consumers[self.owner[j]]:
+        for k, (src, gain) in enumerate(zip(system.src, system.a)):
+            for j, a in zip(np.asarray(src, dtype=int), gain):
+                # an unconnected input reads a constant (gain 0), from no one
+                if a != 0.0 and k not in self.consumers[self.owner[j]]:
                     self.consumers[self.owner[j]].append(k)
         self.tracks = [Track(k, n, _copy_policy(policy), h0,
                              discrete=isinstance(m, DiscreteEventModel))
                        for k, (n, m) in enumerate(zip(system.names, system.models))]
-        self.events: list[float] = []
+        self.events: list[float] = []  # time events, every sub-model lands on them
+        # per sub-model: the times its trajectory is cut at (time events and the state events
+        # that reach it) and lands on
+        self.cuts: list[list[float]] = [[] for _ in system.models]
+        self.resync = resync
+        # continuous sub-models' discrete outputs (local columns): a change is a state event
+        self.changing = {k: np.array([i for i, p in enumerate(m.outputs) if p.discrete])
+                         for k, m in enumerate(system.models)
+                         if not isinstance(m, DiscreteEventModel)
+                         and any(p.discrete for p in m.outputs)}
+        self.reach = [self._downstream(k) for k in range(len(system.models))]
+        self.state_fired: list[Event] = []  # state events found inside steps, in order found
         self.until = math.inf
         self._requeue: list[int] = []  # sub-models rolled back since the kernel last saw them
         self.on_attempt: Any = None  # on_attempt(name, t, h, accepted): for the results store
@@ -167,11 +180,24 @@ class Multirate:
         self._on_step: Any = None
         self._steppers: list[_Stepper] = []
 
+    def _downstream(self, k: int) -> set[int]:
+        """The sub-models ``k``'s outputs reach through the connections (itself excluded
+        unless on a loop)."""
+        seen: set[int] = set()
+        todo = list(self.consumers[k])
+        while todo:
+            c = todo.pop()
+            if c not in seen:
+                seen.add(c)
+                todo.extend(self.consumers[c])
+        return seen
+
     # -- partners' trajectories ----------------------------------------------------------------
-    def _segment_bounds(self, t: float) -> tuple[float, float]:
-        i = bisect.bisect_right(self.events, t)
-        lo = self.events[i - 1] if i > 0 else -math.inf
-        hi = self.events[i] if i < len(self.events) else math.inf
+    def _segment_bounds(self, t: float, k: int) -> tuple[float, float]:
+        cuts = self.cuts[k]
+        i = bisect.bisect_right(cuts, t)
+        lo = cuts[i - 1] if i > 0 else -math.inf
+        hi = cuts[i] if i < len(cuts) else math.inf
         return lo, hi
 
     def _trajectory(self, j: int, at: np.ndarray,
@@ -186,11 +212,16 @@ class Multirate:
         tr = self.tracks[self.owner[j]]
         col = j - self.system.output_slices[tr.index].start
         times = tr.times
-        lo, hi = self._segment_bounds(float(at[0]) + 1e-12 * max(1.0, abs(float(at[0]))))
-        if tr.discrete:
+        lo, hi = self._segment_bounds(float(at[0]) + 1e-12 * max(1.0, abs(float(at[0]))),
+                                      tr.index)
+        if tr.discrete or (tr.index in self.changing and col in self.changing[tr.index]):
             return self._held(tr, col, at, hi), False
         first = bisect.bisect_left(times, lo - 1e-9 * max(1.0, abs(lo)))
+        while first + 1 < len(times) and times[first + 1] == times[first]:
+            first += 1  # a jump at lo: the segment starts from its right limit
         end = bisect.bisect_right(times, hi + 1e-9 * max(1.0, abs(hi)))
+        if end >= 2 and times[end - 1] == times[end - 2]:
+            end -= 1  # a jump at hi: the segment ends at its left limit
         beyond = bool(at[-1] > times[-1] + 1e-12 * max(1.0, abs(times[-1])))
         if beyond:  # extrapolate from the newest points of the segment
             start, last = max(first, len(times) - (self.order + 1)), len(times)
@@ -416,11 +447,11 @@ class Multirate:
     def _segment_start(self, tr: Track) -> int:
         """Index of the track's first point at or after the last time event it has reached
         (points move when steps are re-run or dropped; extrapolation restarts there)."""
-        t = tr.t
-        i = bisect.bisect_right(self.events, t + 1e-12 * max(1.0, abs(t)))
+        t, cuts = tr.t, self.cuts[tr.index]
+        i = bisect.bisect_right(cuts, t + 1e-12 * max(1.0, abs(t)))
         if i == 0:
             return 0
-        event = self.events[i - 1]
+        event = cuts[i - 1]
         first = bisect.bisect_left(tr.times, event - 1e-9 * max(1.0, abs(event)))
         while first + 1 < len(tr.times) and tr.times[first + 1] == tr.times[first]:
             first += 1  # a discrete-event track's point after its jump (the right limit)
@@ -453,6 +484,8 @@ class Multirate:
         tr.replaced += dropped
         tr.rollbacks += 1
         tr.pending = None
+        self.state_fired = [e for e in self.state_fired
+                            if e.source != tr.name or e.t <= tr.t]  # undone with the steps
         self._requeue.append(k)
         for c in self.consumers[k]:
             if c not in (k, origin) and self.tracks[c].t > tr.t:
@@ -541,15 +574,15 @@ class Multirate:
             if lands:
                 h = landing - t
             token = self._guard(k, t, model.save_state)
-            inputs, extrapolated = self.inputs_over(k, t, h)
             try:
-                y = self.run_step(k, t, h, inputs)
-                slope = self._slope(k, t + h)
+                y, slope, inputs, extrapolated, left, step = self._trial(k, token, t, h)
             except SubModelError as exc:
                 tr.h = self._failed_trial(tr, exc, token, t, h)
                 continue
-            # the slope at a time event belongs to the next segment: no alias check there
-            verdict = self._judge(tr, t, h, y, inputs, slope, lands and landing < self.until)
+            lands, h = lands and step == h, step
+            # the slope at an event belongs to the next segment: no alias check there
+            verdict = self._judge(tr, t, h, y if left is None else left, inputs, slope,
+                                  (lands and landing < self.until) or left is not None)
             if verdict.why is None:
                 break
             tr.rejected += 1
@@ -570,11 +603,82 @@ class Multirate:
             if extrapolated and not tr.discrete else None
         tr.states[len(tr.times) - 1] = token
         tr.times.append(landing if lands else t + h)
+        if left is not None:  # both sides of the jump, at the same time
+            tr.rows.append(left)
+            tr.steps.append(0.0)
+            tr.times.append(tr.times[-1])
+            if slope is not None:
+                tr.slopes.append(slope)
         tr.rows.append(y)
         if slope is not None:
             tr.slopes.append(slope)
         tr.h = verdict.h_next
+        if left is not None:
+            self._state_event(k, left)
         return lands
+
+    def _trial(self, k: int, token: Any, t: float, h: float) -> tuple[
+            np.ndarray, np.ndarray | None, np.ndarray, bool, np.ndarray | None, float]:
+        """One trial step of ``k`` from ``t`` (saved as ``token``): its outputs, slope, inputs
+        and whether they were partly extrapolated; if a discrete output changed inside it, the
+        step is cut at the change (:meth:`_locate_change`) and the left limit there is
+        returned too (else ``None``), with the step actually taken."""
+        inputs, extrapolated = self.inputs_over(k, t, h)
+        y = self.run_step(k, t, h, inputs)
+        left = None
+        cols = self.changing.get(k)
+        if cols is not None and not np.array_equal(y[cols], self.tracks[k].rows[-1][cols]):
+            h, left, y, inputs = self._locate_change(k, token, t, h)
+            extrapolated = self.inputs_over(k, t, h)[1]
+        return y, self._slope(k, t + h), inputs, extrapolated, left, h
+
+    def _locate_change(self, k: int, token: Any, t: float,
+                       h: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """The step from ``t`` (``token``) at whose end a discrete output of ``k`` has just
+        changed, to :data:`~cosimstep.loops.EVENT_TOL`, by bisection of the step (each trial
+        one call of ``k`` alone, its inputs read from the partners' trajectories as for any
+        step). Returns the step, the outputs just before the change (the last trial without
+        it), those after, and the inputs of the step."""
+        tr, model = self.tracks[k], self.system.models[k]
+        cols = self.changing[k]
+        before = tr.rows[-1][cols]
+        a, b, left = 0.0, h, tr.rows[-1]
+        tol = EVENT_TOL * max(1.0, abs(t))
+        while b - a > tol:
+            c = 0.5 * (a + b)
+            self._guard(k, t, model.restore_state, token)
+            y = self.run_step(k, t, c, self.inputs_over(k, t, c)[0])
+            if np.array_equal(y[cols], before):
+                a, left = c, y
+            else:
+                b = c
+        self._guard(k, t, model.restore_state, token)
+        inputs = self.inputs_over(k, t, b)[0]
+        return b, left, self.run_step(k, t, b, inputs), inputs
+
+    def _state_event(self, k: int, left: np.ndarray) -> None:
+        """A discrete output of ``k`` changed at its newest point ``t``: record the event, cut
+        the trajectories it reaches there (extrapolation restarts, steps land on it), and
+        re-synchronize — roll back to ``t`` the sub-models past it that the change reaches
+        (:attr:`resync` ``"partial"``) or all of them (``"complete"``), thesis 4.3.5."""
+        tr, model = self.tracks[k], self.system.models[k]
+        t = tr.t
+        tr.segment = len(tr.times) - 1
+        tr.states[len(tr.times) - 1] = self._guard(k, t, model.save_state)
+        cols = self.changing[k]
+        self.state_fired.append(Event(t, tr.name, "change", {
+            model.outputs[c].name: float(tr.rows[-1][c]) for c in cols}))
+        affected = set(range(len(self.tracks))) if self.resync == "complete" \
+            else {k, *self.reach[k]}
+        for c in sorted(affected):
+            if t not in self.cuts[c]:
+                bisect.insort(self.cuts[c], t)
+        for c in sorted(affected - {k}):
+            other = self.tracks[c]
+            if other.t > t * (1 + 1e-12) + 1e-15:
+                self._rollback(c, t, k, 0)
+            elif other.t == t:
+                other.segment = len(other.times) - 1
 
     def _judge(self, tr: Track, t: float, h: float, y: np.ndarray, inputs: np.ndarray,
                slope: np.ndarray | None, at_event: bool) -> _Verdict:
@@ -641,6 +745,7 @@ class Multirate:
     def initialize(self, t0: float, until: float, events: list[float]) -> None:
         """Initialize every sub-model; the first point of every trajectory is at ``t0``."""
         self.events = events
+        self.cuts = [list(events) for _ in self.tracks]
         self.until = until
         system = self.system
         for k, m in enumerate(system.models):
@@ -689,6 +794,9 @@ class Multirate:
         tr.states[len(tr.times) - 1] = self._guard(k, t, model.save_state)
         if t not in self.events:
             bisect.insort(self.events, t)
+        for cuts in self.cuts:
+            if t not in cuts:
+                bisect.insort(cuts, t)
         for other in self.tracks:
             other.segment = len(other.times) - 1
         return Event(t, tr.name, kind, {p.name: float(v) for p, v in zip(model.outputs, new)})
@@ -769,8 +877,9 @@ class _Stepper(Actor):
         if race.budget:
             race.budget.check(sum(other.calls for other in race.tracks))
         t = tr.t
-        i = bisect.bisect_right(race.events, t + 1e-12 * max(1.0, abs(t)))
-        landing = min(race.events[i], limit) if i < len(race.events) else limit
+        cuts = race.cuts[self.k]
+        i = bisect.bisect_right(cuts, t + 1e-12 * max(1.0, abs(t)))
+        landing = min(cuts[i], limit) if i < len(cuts) else limit
         if race.advance(self.k, landing) and landing < race.until:
             tr.segment = len(tr.times) - 1  # a time event: extrapolate from here on only
         if race._on_step is not None:
@@ -795,10 +904,6 @@ def refusals(models: dict[str, Any], interpolation: str | None = None, *,
     problems += [f"'{n}' has state events (not yet supported by multirate)"
                  for n, m in models.items() if isinstance(m, DiscreteEventModel)
                  and type(m).indicator is not DiscreteEventModel.indicator]
-    problems += [f"'{n}' has discrete outputs ({', '.join(p.name for p in m.outputs if p.discrete)}"
-                 "; their changes are events, not yet supported by multirate)"
-                 for n, m in models.items() if not isinstance(m, DiscreteEventModel)
-                 and any(p.discrete for p in m.outputs)]
     if interpolation == "hermite":
         problems += [f"'{n}' gives no output derivatives (needed by 'hermite')"
                      for n, m in models.items() if not m.capabilities.provides_derivatives]

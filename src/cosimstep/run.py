@@ -276,7 +276,7 @@ class MultiRate(Scheme):
         h0 = getattr(controller, "h0", None) or 1e-4 * (until - t0)
         self.race = Multirate(compiled, policy, min(max(h0, policy.hmin), policy.hmax),
                               order=master.extrapolation, interpolation=master.interpolation,
-                              call_timeout=master.call_timeout)
+                              call_timeout=master.call_timeout, resync=master.resync)
         self.events = events
         self._behind = t0
         self.fired: list[Event] = []
@@ -329,17 +329,19 @@ class MultiRate(Scheme):
             grid = grid[grid <= t_end * (1 + 1e-14) + 1e-15]
             values = np.hstack([race.values_at(tr.index, grid) for tr in tracks])
         models = {tr.name: ModelStats(tr.calls, tr.accepted, tr.rejected, tr.corrections,
-                                      np.array(tr.steps), np.asarray(tr.times),
+                                      np.array([h for h in tr.steps if h > 0]),
+                                      np.asarray(tr.times),
                                       np.array(tr.rows).reshape(len(tr.times), -1),
                                       tr.replaced)
                   for tr in tracks}
-        steps = np.concatenate([np.array(tr.steps) for tr in tracks]) if tracks \
-            else np.zeros(0)
+        steps = np.concatenate([np.array([h for h in tr.steps if h > 0]) for tr in tracks]) \
+            if tracks else np.zeros(0)
         return Outcome(float(t_end), grid, values, steps, models,
                        {tr.name: tr.calls for tr in tracks},
                        {tr.name: tr.time_in_model for tr in tracks},
                        sum(tr.accepted for tr in tracks), sum(tr.rejected for tr in tracks),
-                       race.error_estimate(), list(self.fired))
+                       race.error_estimate(),
+                       sorted([*self.fired, *race.state_fired], key=lambda e: e.t))
 
     def error(self, reference: Reference, out: Outcome,
               names: list[str]) -> tuple[ErrorReport, np.ndarray]:

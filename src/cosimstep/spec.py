@@ -40,6 +40,7 @@ class MasterSection(Section):
     order: list[str] | None = None
     call_timeout: float | None = None
     interpolation: str | None = None
+    resync: str = "partial"
 
 
 class ControllerSection(BaseModel):
@@ -132,7 +133,7 @@ def _master(body: Any, system: System, where: str, problems: list[Problem]) -> M
         return MasterOptions()
     master = MasterOptions(sec.name, sec.extrapolation,
                            tuple(sec.order) if sec.order else None, sec.call_timeout,
-                           sec.interpolation)
+                           sec.interpolation, sec.resync)
     problems.extend(Problem(where, p) for p in master.problems())
     for m in sec.order or []:
         if m not in system.models:
