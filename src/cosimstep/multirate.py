@@ -216,12 +216,7 @@ class Multirate:
                                       tr.index)
         if tr.discrete or (tr.index in self.changing and col in self.changing[tr.index]):
             return self._held(tr, col, at, hi), False
-        first = bisect.bisect_left(times, lo - 1e-9 * max(1.0, abs(lo)))
-        while first + 1 < len(times) and times[first + 1] == times[first]:
-            first += 1  # a jump at lo: the segment starts from its right limit
-        end = bisect.bisect_right(times, hi + 1e-9 * max(1.0, abs(hi)))
-        if end >= 2 and times[end - 1] == times[end - 2]:
-            end -= 1  # a jump at hi: the segment ends at its left limit
+        first, end = _segment_range(times, lo, hi)
         beyond = bool(at[-1] > times[-1] + 1e-12 * max(1.0, abs(times[-1])))
         if beyond:  # extrapolate from the newest points of the segment
             start, last = max(first, len(times) - (self.order + 1)), len(times)
@@ -602,16 +597,7 @@ class Multirate:
         tr.pending = (token, t, h, inputs, rounds, len(tr.times) - 1) \
             if extrapolated and not tr.discrete else None
         tr.states[len(tr.times) - 1] = token
-        tr.times.append(landing if lands else t + h)
-        if left is not None:  # both sides of the jump, at the same time
-            tr.rows.append(left)
-            tr.steps.append(0.0)
-            tr.times.append(tr.times[-1])
-            if slope is not None:
-                tr.slopes.append(slope)
-        tr.rows.append(y)
-        if slope is not None:
-            tr.slopes.append(slope)
+        _append(tr, landing if lands else t + h, y, slope, left)
         tr.h = verdict.h_next
         if left is not None:
             self._state_event(k, left)
@@ -854,6 +840,32 @@ class Multirate:
             for c, j in enumerate(range(sl.start, sl.stop)):
                 out[i, c] = self._trajectory(j, np.array([t]))[0][0]
         return out
+
+
+def _segment_range(times: list[float], lo: float, hi: float) -> tuple[int, int]:
+    """The points of ``times`` in the segment ``[lo, hi]`` as a slice ``[first, end)``: from
+    the right limit of a jump at ``lo`` to the left limit of one at ``hi`` (a jump is stored as
+    two points at the same time)."""
+    first = bisect.bisect_left(times, lo - 1e-9 * max(1.0, abs(lo)))
+    while first + 1 < len(times) and times[first + 1] == times[first]:
+        first += 1
+    end = bisect.bisect_right(times, hi + 1e-9 * max(1.0, abs(hi)))
+    if end >= 2 and times[end - 1] == times[end - 2]:
+        end -= 1
+    return first, end
+
+
+def _append(tr: Track, t: float, y: np.ndarray, slope: np.ndarray | None,
+            left: np.ndarray | None) -> None:
+    """An accepted step's end point; with ``left`` (a jump there), both sides at ``t``, the
+    left limit first, joined by a step of length 0."""
+    for i, row in enumerate([y] if left is None else [left, y]):
+        if i:
+            tr.steps.append(0.0)
+        tr.times.append(t)
+        tr.rows.append(row)
+        if slope is not None:
+            tr.slopes.append(slope)
 
 
 class _Stepper(Actor):
