@@ -30,6 +30,9 @@ import numpy as np
 
 from cosimstep.submodel import Capabilities, Port, SubModel
 
+MAX_EVENTS = 100
+"""Events at one time after which a run ends failed: sub-models that keep firing each other."""
+
 
 @dataclass(frozen=True)
 class Event:
@@ -288,5 +291,5 @@ KINDS: dict[str, tuple[type[DiscreteEventModel], str]] = {
 """The discrete-event kinds a system file names with ``type``."""
 
 
-__all__ = ["KINDS", "DiscreteEventModel", "Event", "FailureModel", "ThresholdMonitor",
+__all__ = ["KINDS", "MAX_EVENTS", "DiscreteEventModel", "Event", "FailureModel", "ThresholdMonitor",
            "Timetable"]

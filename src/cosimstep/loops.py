@@ -217,25 +217,16 @@ class ControllerLoop(_Loop):
 
     def _locate(self, t: float, h: float, token: Any, g0: float, g1: float) -> float:
         """The step from ``t`` at whose end the largest indicator reaches 0, within
-        :data:`EVENT_TOL`: the Illinois variant of regula falsi on the step length, every third
-        trial a bisection (each trial is one master step from the saved state at ``t``)."""
-        assert self.watch is not None
-        a, b, ga, gb, side = 0.0, h, g0, g1, 0
-        tol = EVENT_TOL * max(1.0, abs(t))
-        for i in range(200):
-            if b - a <= tol:
-                break
-            c = 0.5 * (a + b) if i % 3 == 2 else b - gb * (b - a) / (gb - ga)
-            c = min(max(c, a + 0.25 * tol), b - 0.25 * tol)
+        :data:`EVENT_TOL` (:func:`crossing`; each trial is one master step from the saved state
+        at ``t``)."""
+        watch = self.watch
+        assert watch is not None
+
+        def g(c: float) -> float:
             self.ctx.restore(token)
-            gc = self.watch(self.ctx.step(t, c))
-            if gc >= 0.0:
-                b, gb = c, gc
-                ga, side = (0.5 * ga if side == 1 else ga), 1
-            else:
-                a, ga = c, gc
-                gb, side = (0.5 * gb if side == -1 else gb), -1
-        return b
+            return watch(self.ctx.step(t, c))
+
+        return crossing(g, 0.0, h, g0, g1, EVENT_TOL * max(1.0, abs(t)))
 
     def last(self) -> np.ndarray:
         """The outputs at the current time."""
@@ -473,6 +464,27 @@ class _Clock:
     @property
     def value(self) -> float:
         return self._sum + self._carry
+
+
+def crossing(g: Callable[[float], float], a: float, b: float, ga: float, gb: float,
+             tol: float) -> float:
+    """Where ``g`` reaches 0 from below inside ``[a, b]`` (``ga < 0 <= gb``), to within
+    ``tol``: the first side of the final bracket where ``g >= 0``. The Illinois variant of
+    regula falsi, every third trial a bisection (``g`` may be only piecewise smooth)."""
+    side = 0
+    for i in range(200):
+        if b - a <= tol:
+            break
+        c = 0.5 * (a + b) if i % 3 == 2 else b - gb * (b - a) / (gb - ga)
+        c = min(max(c, a + 0.25 * tol), b - 0.25 * tol)
+        gc = g(c)
+        if gc >= 0.0:
+            b, gb = c, gc
+            ga, side = (0.5 * ga if side == 1 else ga), 1
+        else:
+            a, ga = c, gc
+            gb, side = (0.5 * gb if side == -1 else gb), -1
+    return b
 
 
 def _next_landing(events: list[float], t: float, t_end: float) -> float:

@@ -38,10 +38,10 @@ import numpy as np
 
 from cosimstep.controllers.base import StepPolicy
 from cosimstep.errors import SubModelError
-from cosimstep.events import DiscreteEventModel, Event
+from cosimstep.events import MAX_EVENTS, DiscreteEventModel, Event
 from cosimstep.extrapolation import evaluate, taylor_coefficients
 from cosimstep.kernel import Actor, Budget, Kernel
-from cosimstep.loops import EVENT_TOL
+from cosimstep.loops import EVENT_TOL, crossing
 from cosimstep.masters import Master, MasterOptions
 from cosimstep.system import CompiledSystem
 
@@ -151,12 +151,8 @@ class Multirate:
         self.owner = np.empty(system.n_outputs, dtype=int)
         for k, sl in enumerate(system.output_slices):
             self.owner[sl] = k
-        self.consumers: list[list[int]] = [[] for _ in system.models]
-        for k, (src, gain) in enumerate(zip(system.src, system.a)):
-            for j, a in zip(np.asarray(src, dtype=int), gain):
-                # an unconnected input reads a constant (gain 0), from no one
-                if a != 0.0 and k not in self.consumers[self.owner[j]]:
-                    self.consumers[self.owner[j]].append(k)
+        self.consumers = [sorted({k for k in range(len(system.models))
+                                  if j in self._sources(k)}) for j in range(len(system.models))]
         self.tracks = [Track(k, n, _copy_policy(policy), h0,
                              discrete=isinstance(m, DiscreteEventModel))
                        for k, (n, m) in enumerate(zip(system.names, system.models))]
@@ -171,6 +167,11 @@ class Multirate:
                          if not isinstance(m, DiscreteEventModel)
                          and any(p.discrete for p in m.outputs)}
         self.reach = [self._downstream(k) for k in range(len(system.models))]
+        # threshold-type sub-models (a state event on their inputs) and the sub-models they read
+        self.monitors = {k: sorted(self._sources(k)) for k, m in enumerate(system.models)
+                         if isinstance(m, DiscreteEventModel)
+                         and type(m).indicator is not DiscreteEventModel.indicator}
+        self.checked = dict.fromkeys(self.monitors, -math.inf)  # searched up to this time
         self.state_fired: list[Event] = []  # state events found inside steps, in order found
         self.until = math.inf
         self._requeue: list[int] = []  # sub-models rolled back since the kernel last saw them
@@ -179,6 +180,11 @@ class Multirate:
         self.budget: Budget | None = None  # whole-run limits
         self._on_step: Any = None
         self._steppers: list[_Stepper] = []
+
+    def _sources(self, k: int) -> set[int]:
+        """The sub-models ``k`` reads (an unconnected input reads a constant: gain 0)."""
+        return {int(self.owner[j]) for j, a in zip(self.system.src[k], self.system.a[k])
+                if a != 0.0}
 
     def _downstream(self, k: int) -> set[int]:
         """The sub-models ``k``'s outputs reach through the connections (itself excluded
@@ -452,14 +458,16 @@ class Multirate:
             first += 1  # a discrete-event track's point after its jump (the right limit)
         return first
 
-    def _rollback(self, k: int, t0: float, origin: int, rounds: int) -> bool:
+    def _rollback(self, k: int, t0: float, origin: int, rounds: int,
+                  across: bool = False) -> bool:
         """Restore ``k`` to its last saved point at or before ``t0`` and drop what came after
         (those steps count as re-runs: ``corrections``). Consumers of ``k`` that ran past that
         point are rolled back with it, except ``origin``, whose corrected step caused this (it
-        is verified again instead)."""
+        is verified again instead). Only an event goes back ``across`` a time event the track
+        has passed (a correction before it changes nothing after it)."""
         tr = self.tracks[k]
         candidates = [i for i in tr.states if tr.times[i] <= t0 * (1 + 1e-12) + 1e-15
-                      and i >= tr.segment]
+                      and (across or i >= tr.segment)]
         if not candidates:
             # before a time event the track has passed (nothing to redo), or a state already
             # forgotten (not seen on the suite with the margin in _forget_states)
@@ -481,10 +489,12 @@ class Multirate:
         tr.pending = None
         self.state_fired = [e for e in self.state_fired
                             if e.source != tr.name or e.t <= tr.t]  # undone with the steps
+        if k in self.checked:  # a threshold-type model searches its inputs again from here
+            self.checked[k] = min(self.checked[k], tr.t)
         self._requeue.append(k)
         for c in self.consumers[k]:
             if c not in (k, origin) and self.tracks[c].t > tr.t:
-                self._rollback(c, tr.t, origin, rounds)
+                self._rollback(c, tr.t, origin, rounds, across)
         return True
 
     def _pieces(self, tr: Track, t0: float, h: float, actual: np.ndarray,
@@ -618,6 +628,67 @@ class Multirate:
             extrapolated = self.inputs_over(k, t, h)[1]
         return y, self._slope(k, t + h), inputs, extrapolated, left, h
 
+    def watch(self, k: int) -> None:
+        """After ``k`` stepped: search the threshold-type sub-models that read ``k`` for a
+        crossing in the stretch all their sources now cover, and fire them there.
+
+        Their inputs are read from the sources' trajectories as any input is (no call): the
+        indicator is sampled at the sources' own points and a crossing between two samples is
+        located on the trajectories to :data:`~cosimstep.loops.EVENT_TOL`, as an ODE solver
+        locates an event on its dense output.
+        """
+        for m, sources in self.monitors.items():
+            if k not in sources:
+                continue
+            lo, hi = self.checked[m], min(self.tracks[s].t for s in sources)
+            if hi <= lo:
+                continue
+            samples = sorted({t for s in sources for t in self.tracks[s].times if lo < t < hi})
+            g_prev, prev = self._indicator(m, lo), lo
+            # already past its level where the search starts (at the start, or pushed there by
+            # another event at that time): it fires there
+            found = lo if g_prev > 0.0 else None
+            for s in [*samples, hi] if found is None else []:
+                g = self._indicator(m, s)
+                if g_prev < 0.0 <= g:
+                    found = crossing(lambda c, m=m: self._indicator(m, c), prev, s, g_prev, g,
+                                     EVENT_TOL * max(1.0, abs(s)))
+                    break
+                g_prev, prev = g, s
+            self.checked[m] = hi if found is None else found
+            if found is not None:
+                self._fire_monitor(m, found)
+                self.checked[m] = found
+                self.watch(m)  # its new outputs may carry another monitor over
+
+    def _inputs_at(self, k: int, t: float) -> np.ndarray:
+        """Model ``k``'s inputs at ``t`` from its sources' trajectories."""
+        system = self.system
+        at = np.array([t])
+        return np.array([b if a == 0.0 else a * self._trajectory(int(j), at)[0][0] + b
+                         for j, a, b in zip(system.src[k], system.a[k], system.b[k])])
+
+    def _indicator(self, m: int, t: float) -> float:
+        model: DiscreteEventModel = self.system.models[m]  # type: ignore[assignment]
+        g = model.indicator(self._inputs_at(m, t))
+        return -math.inf if g is None else float(g)
+
+    def _fire_monitor(self, m: int, t: float) -> None:
+        """Fire threshold-type sub-model ``m`` at ``t``: its track goes back to ``t`` if it was
+        past it (its outputs held there), gets both sides of the jump, and the event
+        re-synchronizes what it reaches (:meth:`_event`)."""
+        tr, model = self.tracks[m], self.system.models[m]
+        if tr.t > t * (1 + 1e-12) + 1e-15 and not self._rollback(m, t, m, 0, across=True):
+            raise RuntimeError(f"'{tr.name}' crossed its level at t = {t:.9g} but its saved "
+                               "state there is gone; report this as a bug")
+        old = tr.rows[-1].copy()
+        kind = model.apply(t, self._inputs_at(m, t))  # type: ignore[attr-defined]
+        new = np.asarray(model.get_outputs(), dtype=float)
+        tr.steps.append(t - tr.t if tr.t < t else 0.0)
+        _append(tr, t, new, None, old if tr.t < t else None)
+        self._requeue.append(m)
+        self._event(m, kind, {p.name: float(v) for p, v in zip(model.outputs, new)})
+
     def _locate_change(self, k: int, token: Any, t: float,
                        h: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """The step from ``t`` (``token``) at whose end a discrete output of ``k`` has just
@@ -643,17 +714,27 @@ class Multirate:
         return b, left, self.run_step(k, t, b, inputs), inputs
 
     def _state_event(self, k: int, left: np.ndarray) -> None:
-        """A discrete output of ``k`` changed at its newest point ``t``: record the event, cut
-        the trajectories it reaches there (extrapolation restarts, steps land on it), and
-        re-synchronize — roll back to ``t`` the sub-models past it that the change reaches
-        (:attr:`resync` ``"partial"``) or all of them (``"complete"``), thesis 4.3.5."""
+        """A discrete output of ``k`` changed at its newest point ``t``: record the event and
+        re-synchronize (:meth:`_resync`)."""
         tr, model = self.tracks[k], self.system.models[k]
+        cols = self.changing[k]
+        self._event(k, "change", {model.outputs[c].name: float(tr.rows[-1][c]) for c in cols})
+
+    def _event(self, k: int, kind: str, payload: dict[str, float]) -> None:
+        """``k`` has an event at its newest point ``t`` (both sides of the jump stored): record
+        it, cut the trajectories it reaches there (extrapolation restarts, steps land on it),
+        and re-synchronize — roll back to ``t`` the sub-models past it that the event reaches
+        (:attr:`resync` ``"partial"``) or all of them (``"complete"``), thesis 4.3.5."""
+        tr = self.tracks[k]
         t = tr.t
         tr.segment = len(tr.times) - 1
-        tr.states[len(tr.times) - 1] = self._guard(k, t, model.save_state)
-        cols = self.changing[k]
-        self.state_fired.append(Event(t, tr.name, "change", {
-            model.outputs[c].name: float(tr.rows[-1][c]) for c in cols}))
+        tr.states[len(tr.times) - 1] = self._guard(k, t, self.system.models[k].save_state)
+        self.state_fired.append(Event(t, tr.name, kind, payload))
+        if sum(e.t == t for e in self.state_fired) > MAX_EVENTS:
+            names = ", ".join(sorted({e.source for e in self.state_fired if e.t == t}))
+            raise RuntimeError(f"more than {MAX_EVENTS} events at t = {t:.9g}: {names} keep "
+                               "firing each other (an endless event loop; add hysteresis or "
+                               "break the cycle)")
         affected = set(range(len(self.tracks))) if self.resync == "complete" \
             else {k, *self.reach[k]}
         for c in sorted(affected):
@@ -661,8 +742,10 @@ class Multirate:
                 bisect.insort(self.cuts[c], t)
         for c in sorted(affected - {k}):
             other = self.tracks[c]
+            if other.discrete and c not in self.monitors:
+                continue  # a scheduled discrete-event model: nothing it does depends on others
             if other.t > t * (1 + 1e-12) + 1e-15:
-                self._rollback(c, t, k, 0)
+                self._rollback(c, t, k, 0, across=True)
             elif other.t == t:
                 other.segment = len(other.times) - 1
 
@@ -732,6 +815,7 @@ class Multirate:
         """Initialize every sub-model; the first point of every trajectory is at ``t0``."""
         self.events = events
         self.cuts = [list(events) for _ in self.tracks]
+        self.checked = dict.fromkeys(self.monitors, t0)
         self.until = until
         system = self.system
         for k, m in enumerate(system.models):
@@ -894,6 +978,7 @@ class _Stepper(Actor):
         landing = min(cuts[i], limit) if i < len(cuts) else limit
         if race.advance(self.k, landing) and landing < race.until:
             tr.segment = len(tr.times) - 1  # a time event: extrapolate from here on only
+        race.watch(self.k)
         if race._on_step is not None:
             race._on_step(tr)
         for actor in race._woken():
@@ -913,9 +998,6 @@ def refusals(models: dict[str, Any], interpolation: str | None = None, *,
                 if state and not m.capabilities.can_save_state]
     problems += [f"'{n}' has direct feedthrough" for n, m in models.items()
                  if m.capabilities.has_direct_feedthrough]
-    problems += [f"'{n}' has state events (not yet supported by multirate)"
-                 for n, m in models.items() if isinstance(m, DiscreteEventModel)
-                 and type(m).indicator is not DiscreteEventModel.indicator]
     if interpolation == "hermite":
         problems += [f"'{n}' gives no output derivatives (needed by 'hermite')"
                      for n, m in models.items() if not m.capabilities.provides_derivatives]

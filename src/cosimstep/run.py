@@ -28,16 +28,13 @@ import numpy as np
 
 from cosimstep.controllers import Controller, Fixed
 from cosimstep.errors import StepSizeError, SubModelError
-from cosimstep.events import DiscreteEventModel, Event
+from cosimstep.events import MAX_EVENTS, DiscreteEventModel, Event
 from cosimstep.kernel import Actor, Budget, BudgetExceeded, Kernel
 from cosimstep.loops import ControllerLoop, FixedLoop
 from cosimstep.masters import Master, MasterOptions
 from cosimstep.reference import ErrorReport, Reference, error_report
 from cosimstep.result import ModelStats, SimulationResult
 from cosimstep.store import Store
-
-MAX_EVENTS = 100
-"""Events at one time after which a run ends failed: sub-models that keep firing each other."""
 
 
 @dataclass

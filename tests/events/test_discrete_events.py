@@ -133,10 +133,29 @@ def test_multirate_failure_stops_what_it_feeds():
     assert abs(result["tank.x"][-1] - event.t) < 1e-9
 
 
-def test_multirate_refuses_state_events():
-    with pytest.raises(ValueError, match="'mon' has state events"):
-        cs.simulate(_monitored(0.5, 0.2), 1.0, cs.make_controller("pc", None, 1e-4),
-                    cs.MasterOptions("multirate", 2))
+@pytest.mark.parametrize("resync", ["partial", "complete"])
+@pytest.mark.parametrize("tol", [1e-4, 1e-8])
+def test_multirate_locates_a_state_event_on_the_trajectories(resync, tol):
+    result = cs.simulate(_monitored(0.5, 0.2), 2.0, cs.make_controller("pc", None, tol),
+                         cs.MasterOptions("multirate", 2, resync=resync))
+    assert result.success, result.message
+    crossings = [(e.t, e.kind) for e in result.events if e.source == "mon"]
+    assert [k for _, k in crossings] == ["rise", "fall"]
+    # x reached 1.0 in one step, past the crossing at 0.5, with mon and z already there: the
+    # crossing is found on x's trajectory and z goes back to it
+    assert abs(crossings[0][0] - 0.5) < 1e-10 and abs(crossings[1][0] - 1.7) < 1e-10
+    assert abs(result["z.x"][-1] - 1.2) < 1e-9
+    mon = result.models["mon"]
+    assert list(mon.times).count(crossings[0][0]) == 2  # both sides of the jump
+
+
+def test_multirate_partial_resync_leaves_the_source_alone():
+    calls = {mode: cs.simulate(_monitored(0.5, 0.2), 2.0, cs.make_controller("pc", None, 1e-6),
+                               cs.MasterOptions("multirate", 2, resync=mode)).calls
+             for mode in ("partial", "complete")}
+    # x (watched, not reached by the alarm) goes back only under complete (measured 24 / 52)
+    assert calls["partial"]["x"] < calls["complete"]["x"]
+    assert calls["partial"]["z"] == calls["complete"]["z"]
 
 
 def test_a_rejected_step_restores_the_generator():
@@ -235,11 +254,14 @@ def test_an_endless_event_loop_ends_the_run_and_names_the_models():
     system.connect("b.alarm", "a.x")
     system.connect("a.alarm", "b.x", gain=-1.0, offset=1.0)  # above 0.5 at the start
     system.connect("a.alarm", "x.u")
-    result = cs.simulate(system, 1.0, cs.make_controller("pc", None, 1e-6))
-    assert result.status == "failed"
-    assert "more than 100 events" in result.message and "endless event loop" in result.message
-    assert "a, b keep firing each other" in result.message
-    assert len(result.events) >= 100 and len(result.times) > 1  # what happened is kept
+    for master in ("gauss-seidel", "multirate"):
+        result = cs.simulate(system, 1.0, cs.make_controller("pc", None, 1e-6),
+                             cs.MasterOptions(master, 2))
+        assert result.status == "failed"
+        assert "more than 100 events" in result.message
+        assert "endless event loop" in result.message
+        assert "a, b keep firing each other" in result.message
+        assert len(result.events) >= 100 and len(result.times) >= 1  # what happened is kept
 
 
 def test_events_are_stored_and_marked_on_the_plot(tmp_path):
