@@ -286,3 +286,26 @@ def test_refused_fmus(ball: Path, fmu_cache: Path, tmp_path: Path) -> None:
                                        r".*e must be in \[0, 1\]"):
         failing.initialize(0.0)
     assert failing._unzipped is None
+
+
+@pytest.mark.parametrize("master", ["gauss-seidel", "multirate"])
+def test_a_discrete_fmu_output_is_an_event_the_master_lands_on(ball: Path, master: str) -> None:
+    """`bounces` is a discrete output (variability="discrete"): the master holds it and lands
+    a point on each change, so its integral over 2 s is exact, Σ (2 - t_k)."""
+    from helpers import Integrator
+
+    system = cosimstep.System()
+    system.add("ball", MeSubModel(ball))
+    system.add("count", Integrator())
+    system.connect("ball.bounces", "count.u")
+    assert [p.discrete for p in system.models["ball"].outputs] == [False, False, True]
+    result = cosimstep.simulate(system, 2.0, make_controller("pc", None, 1e-6),
+                                cosimstep.MasterOptions(master, 2))
+    assert result.success, result.message
+    expected = bounce_times(4)
+    times = [e.t for e in result.events]
+    assert [(e.source, e.kind) for e in result.events] == [("ball", "change")] * 4
+    # the FMU locates its own bounces to 2.3e-16 s; the master lands within 1e-12 s after
+    assert np.max(np.abs(np.array(times) - expected)) < 1e-11
+    integral = sum(2.0 - t for t in expected)
+    assert result["count.x"][-1] == pytest.approx(integral, abs=1e-10)

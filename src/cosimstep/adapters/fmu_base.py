@@ -275,7 +275,10 @@ class FmuBase(SubModel):
     def _port(self, v: ModelVariable) -> Port:
         value = self.start[v.name][1] if v.name in self.start else v.start
         unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or "1"
-        return Port(v.name, unit, None if value is None else float(value), v.description or "")
+        # a discrete output changes only at the FMU's own events: the master holds it and
+        # lands on its changes (Port.discrete)
+        return Port(v.name, unit, None if value is None else float(value), v.description or "",
+                    discrete=v.causality == "output" and v.variability == "discrete")
 
     def _feedthrough(self) -> dict[str, tuple[str, ...]]:
         """Per output, the inputs it depends on at the same instant (ModelStructure/Outputs)."""
