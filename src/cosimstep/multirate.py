@@ -29,6 +29,7 @@ can see.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -1011,7 +1012,7 @@ def _copy_policy(policy: StepPolicy) -> StepPolicy:
     drifted from 0.6-2× tol at tol 1e-2 to 4.6-27× at 1e-6 (steps are shared less evenly than
     the synchronous master's, whose one step serves every sub-model); target 0.1 made the
     duplicated state and the KPR problem 10-100× more accurate than asked (docs/concepts.md)."""
-    fields = {k: v for k, v in vars(policy).items() if not k.startswith("_")}
+    fields = {f.name: getattr(policy, f.name) for f in dataclasses.fields(policy)}
     fields.update(distribute=True, cancellation=3.0, target=0.5)
     return StepPolicy(**fields)
 

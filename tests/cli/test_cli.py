@@ -233,7 +233,7 @@ def test_user_errors_are_configuration_errors_not_tracebacks(examples, tmp_path)
     cases = [
         (["run", linear, "--until", "-1"], "--until: must be a positive number"),
         (["run", linear, "--tol", "1e-3", "--opt", "foo=bar"],
-         "unknown option 'foo' (fix: its options: tol, h0, atol, rtol, hmin, hmax"),
+         "unknown option 'foo' (fix: its options: tol, h0, probe_every, atol, rtol, hmin, hmax"),
     ]
     (tmp_path / "neg.toml").write_text(
         'until = 1.0\n[models.a]\ntype = "linear_coupled.slow"\n'

@@ -121,6 +121,9 @@ class StepPolicy:
         The tolerance bounds the *global* error over the run: each step may spend a share of it
         proportional to its length (error per unit step, scaled by the run length). Without it,
         ``tol`` bounds each step's local error, and the global error grows with the step count.
+        The share is taken over the run's length, or over its *error memory* where a
+        controller measured one (``memory`` [s], :mod:`~cosimstep.controllers.memory`): an
+        error that fades within ``memory`` adds up over that long, not over the run.
     cancellation:
         With ``global_error``: the sum of the local error estimates may reach
         ``cancellation × tol`` before a step is rejected. The control aims at ``target`` of
@@ -164,12 +167,14 @@ class StepPolicy:
                 and 0 < self.target < 1):
             raise ValueError("need 0 < shrink < 1 < grow, 0 < safety <= 1, 0 < target < 1")
         self._span = 1.0
+        self.memory = math.inf  # the measured error memory [s], set by the controller
         self._previous = self.target
         self._count = 0  # accepted steps
         self._elapsed = 0.0
 
     def start(self, t0: float, t_end: float) -> None:
         self._span = t_end - t0
+        self.memory = math.inf
         self._previous = self.target  # neutral: the first accepted step is not pushed
         self._count, self._elapsed = 0, 0.0
 
@@ -187,7 +192,8 @@ class StepPolicy:
         """Largest error / allowed over the variables, and the index where it occurs."""
         allowed = self.scale(y)
         if self.global_error:
-            allowed = allowed * (self.cancellation * h / self._span)
+            # an error is carried for the rest of the run, or for the measured error memory
+            allowed = allowed * (self.cancellation * h / min(self._span, self.memory))
             if self.distribute:
                 # an equal share per step: the steps taken plus those left at this length
                 steps = self._count + max(self._span - self._elapsed, h) / h

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from cosimstep.controllers.base import Attempt, Controller, StepContext, StepPolicy
+from cosimstep.controllers.memory import ErrorMemory
 from cosimstep.extrapolation import evaluate, taylor_coefficients
 
 
@@ -63,22 +64,29 @@ class _PolicyController(Controller):
     def initial_step(self, t0: float, t_end: float) -> float:
         self.policy.start(t0, t_end)
         self._spent = None
+        self.probe.reset(t0, t_end)
         self.error_estimate = 0.0
         h0 = self.h0 if self.h0 is not None else 1e-4 * (t_end - t0)
         return min(max(h0, self.policy.hmin), self.policy.hmax)
 
-    def _account(self, error: np.ndarray, values: np.ndarray) -> None:
+    probe = ErrorMemory(every=0)  # off unless a controller measures the error memory
+    """The error memory probe (:mod:`~cosimstep.controllers.memory`); ``pc`` turns it on."""
+
+    def _account(self, error: np.ndarray, values: np.ndarray, h: float) -> None:
         """Add an accepted step's local error estimate to the run's global error estimate.
 
         The estimate is the running sum of the local estimates, per output, in the norm
         ``tol`` bounds (``|e| / (atol/tol + rtol/tol·|y|)``, i.e. ``|e| / (1 + |y|)`` with the
         default ``atol = rtol = tol``): what the error would be if every step's error were
-        carried to the end unchanged. Errors that decay (damped, stiff) or partly cancel
-        (oscillations) make it an overestimate; docs/benchmarks.md has the measured ratios.
+        carried to the end unchanged — or, where the error memory ``τ`` was measured
+        (:mod:`~cosimstep.controllers.memory`), fading by ``exp(−h/τ)`` per step. Errors that
+        decay faster or partly cancel (oscillations) make it an overestimate; docs/benchmarks.md
+        has the measured ratios.
         """
         if error.shape != values.shape:
             return  # an estimate over a subset of the outputs (``defect``): not summable
-        self._spent = np.abs(error) if self._spent is None else self._spent + np.abs(error)
+        fade = math.exp(-h / self.policy.memory)
+        self._spent = np.abs(error) if self._spent is None else fade * self._spent + np.abs(error)
         scale = self.policy.scale(values) / self.policy.tol
         self.error_estimate = max(self.error_estimate, float(np.max(self._spent / scale)))
 
@@ -88,7 +96,7 @@ class _PolicyController(Controller):
         ratio, i = self.policy.ratio(error, values, h)
         accepted = ratio <= 1.0
         if accepted:
-            self._account(error, values)
+            self._account(error, values, h)
         k = (k if self.policy.global_error else k + 1) + self.policy.extra_power
         h_next = self.policy.next_step(h, ratio, k, accepted)
         if not accepted:
@@ -185,12 +193,14 @@ class PredictorCorrector(_PolicyController):
 
     name = "pc"
 
-    def __init__(self, tol: float = 1e-4, h0: float | None = None, **policy: Any) -> None:
+    def __init__(self, tol: float = 1e-4, h0: float | None = None, probe_every: int = 20,
+                 **policy: Any) -> None:
         # 0.85 rather than 0.9: on the benchmark problems it halved the rejections and, as the
         # estimate is least reliable at the largest steps, gave a steadier error / tol
         # (docs/benchmarks.md).
         policy.setdefault("safety", 0.85)
         super().__init__(tol, h0, **policy)
+        self.probe = ErrorMemory(every=probe_every)
 
     def attempt(self, ctx: StepContext, t: float, h: float) -> Attempt:
         if bool(np.any(ctx.held & ctx.consumed)):
@@ -202,10 +212,21 @@ class PredictorCorrector(_PolicyController):
         q = _effective_order(ctx)
         token = ctx.save()
         y_p = ctx.step(t, h)
+        probe = self.probe
+        token_p = ctx.save() if probe.due(t + h) else None  # a probe may start from here
         ctx.restore(token)
         y_c = _correct(ctx, t, h, y_p, q)
         rho = self._input_ratio(ctx, t, h, q, y_p, y_c)
-        return self._decide(ctx, token, t, h, y_c, rho * (y_c - y_p), y_c, q + 2, ctx.names)
+        attempt = self._decide(ctx, token, t, h, y_c, rho * (y_c - y_p), y_c, q + 2, ctx.names)
+        if attempt.accepted:
+            probe.accepted()
+            if token_p is not None:
+                probe.probe(t + h, attempt.h_next, (ctx.save(), y_c), (token_p, y_p),
+                            self.policy.scale(y_c),
+                            lambda s, step, points: ctx.step(s, step, extra=points),
+                            ctx.restore)
+                self.policy.memory = probe.memory
+        return attempt
 
     def _input_ratio(self, ctx: StepContext, t: float, h: float, q: int, y_p: np.ndarray,
                      y_c: np.ndarray) -> float:
