@@ -64,7 +64,8 @@ def main() -> None:
 @click.option("--tol", type=float,
               help="Tolerance of an adaptive controller: the sum of its local error estimates "
               "over the run, in |e| / (1 + |y|) (atol = rtol = tol; set apart with --opt atol=.. "
-              "--opt rtol=..), is aimed at TOL/2. --json reports the measured error in that norm "
+              "--opt rtol=..), is aimed at TOL/2; pc lets errors it measured to fade within a "
+              "time M count over M only. --json reports the measured error in that norm "
               "(error.max_scaled, with a reference) and the run's own estimate (error_estimate).")
 @click.option("--estimate", type=click.Choice(["sum", "rerun"]), default="sum",
               show_default=True,
