@@ -143,6 +143,7 @@ class Multirate:
                              + "; ".join(problems) + " — use the gauss-seidel or jacobi master")
         self.system = system
         self.order = order
+        self.h0 = h0
         self._caller = Master(system, MasterOptions("multirate", order, call_timeout=call_timeout))
         self.method = None
         if interpolation is not None:
@@ -574,8 +575,9 @@ class Multirate:
         model = self.system.models[k]
         pol = tr.policy
         t = tr.t
+        reach = self._reach(k, t)
         while True:
-            h = min(tr.h, model.capabilities.max_step, pol.hmax)
+            h = min(tr.h, model.capabilities.max_step, pol.hmax, reach)
             lands = h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h
             if lands:
                 h = landing - t
@@ -613,6 +615,29 @@ class Multirate:
         if left is not None:
             self._state_event(k, left)
         return lands
+
+    def _reach(self, k: int, t: float) -> float:
+        """How far past ``t`` model ``k`` may step on its partners' extrapolated trajectories.
+
+        Extrapolation needs a trend: ``order + 1`` points of the partner since its last cut
+        (time event, state event). With fewer — right after an event, where the partner has
+        only the point at the event — it is a hold or a line through one step, which says
+        nothing about what the partner does next; a step on it sees unchanged inputs, makes no
+        error its estimates could see, and is accepted however long (the quarter car's chassis
+        took 1 → 3 s after the road step, and the wheel then read that flat trajectory). Such
+        a step reaches no further than the partner's own next step; beyond a trend, the
+        verification of pending steps takes over.
+        """
+        reach = math.inf
+        for s in self._sources(k) - {k}:
+            other = self.tracks[s]
+            if other.discrete:
+                continue
+            lo, hi = self._segment_bounds(t + 1e-12 * max(1.0, abs(t)), s)
+            first, _ = _segment_range(other.times, lo, hi)
+            if len(other.times) - first < self.order + 1:
+                reach = min(reach, other.t + other.h - t)
+        return reach if reach > 0 else math.inf
 
     def _trial(self, k: int, token: Any, t: float, h: float) -> tuple[
             np.ndarray, np.ndarray | None, np.ndarray, bool, np.ndarray | None, float]:
@@ -749,6 +774,9 @@ class Multirate:
                 self._rollback(c, t, k, 0, across=True)
             elif other.t == t:
                 other.segment = len(other.times) - 1
+        for c in affected:  # at the event now: step control starts again (see _Stepper.act)
+            if self.tracks[c].t == t:
+                self.tracks[c].h = min(self.tracks[c].h, self.h0)
 
     def _judge(self, tr: Track, t: float, h: float, y: np.ndarray, inputs: np.ndarray,
                slope: np.ndarray | None, at_event: bool) -> _Verdict:
@@ -979,6 +1007,8 @@ class _Stepper(Actor):
         landing = min(cuts[i], limit) if i < len(cuts) else limit
         if race.advance(self.k, landing) and landing < race.until:
             tr.segment = len(tr.times) - 1  # a time event: extrapolate from here on only
+            # the dynamics change here: step control starts again as at the run's start
+            tr.h = min(tr.h, race.h0)
         race.watch(self.k)
         if race._on_step is not None:
             race._on_step(tr)

@@ -56,12 +56,13 @@ def test_the_estimate_needs_no_reference() -> None:
     assert result.summary()["error_estimate"] == result.error_estimate
 
 
-@pytest.mark.xfail(strict=True, reason="issue 13, open: after the road step the chassis reads "
-                   "the wheel's 11 Hz motion through cubics and is corrected after the wheel "
-                   "used it; measured 34 x tol (4.5e3 before rollbacks kept their states)")
+# measured err/tol at the quick horizon, tol 1e-5: 34 when the sub-models kept their long
+# pre-event steps across the road step (the chassis stepped 1 -> 3 s on the wheel's single
+# post-event point); with step control restarting at the event 0.27 (full horizon 0.07-0.36
+# over tol 1e-2..1e-6)
 def test_multirate_quarter_car_after_the_road_step() -> None:
     result = _run("quarter_car_announced", "multirate", 1e-5)
-    assert result.error.max_scaled <= 10 * 1e-5
+    assert 0.1 * 1e-5 <= result.error.max_scaled <= 10 * 1e-5
 
 
 # measured re-run estimate / err at tol 1e-3: two_mass_damped 0.82, quarter_car_announced 0.81,
