@@ -74,6 +74,8 @@ class _Verdict:
     why: str | None
     spent_out: float
     spent_in: float
+    ratio: float = 0.0  # the consumer-facing error ratio (interpolation of the trajectory)
+    power: float = 4.0  # the power of h that ratio scales with on a smooth trajectory
 
 
 @dataclass
@@ -591,6 +593,7 @@ class Multirate:
         pol = tr.policy
         t = tr.t
         reach = self._reach(k, t)
+        chain: list[tuple[float, _Verdict]] = []  # this step's rejections (h, verdict)
         while True:
             h = min(tr.h, model.capabilities.max_step, pol.hmax, reach)
             lands = h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h
@@ -608,6 +611,7 @@ class Multirate:
                                   (lands and landing < self.until) or left is not None)
             if verdict.why is None:
                 break
+            chain.append((h, verdict))
             tr.rejected += 1
             if self.on_attempt is not None:
                 self.on_attempt(tr.name, t, h, False)
@@ -617,6 +621,7 @@ class Multirate:
         tr.accepted += 1
         tr.spent_out += verdict.spent_out
         tr.spent_in += verdict.spent_in
+        sudden = _discontinuity(chain, h, verdict, tr.steps[-1] if tr.steps else None)
         tr.steps.append(h)
         if self.on_attempt is not None:
             self.on_attempt(tr.name, t, h, True)
@@ -629,6 +634,8 @@ class Multirate:
         tr.h = verdict.h_next
         if left is not None:
             self._state_event(k, left)
+        elif sudden and not lands:
+            self._event(k, "discontinuity", {}, at=len(tr.times) - 2)
         return lands
 
     def _reach(self, k: int, t: float) -> float:
@@ -761,15 +768,18 @@ class Multirate:
         cols = self.changing[k]
         self._event(k, "change", {model.outputs[c].name: float(tr.rows[-1][c]) for c in cols})
 
-    def _event(self, k: int, kind: str, payload: dict[str, float]) -> None:
-        """``k`` has an event at its newest point ``t`` (both sides of the jump stored): record
-        it, cut the trajectories it reaches there (extrapolation restarts, steps land on it),
-        and re-synchronize — roll back to ``t`` the sub-models past it that the event reaches
+    def _event(self, k: int, kind: str, payload: dict[str, float], at: int | None = None) -> None:
+        """``k`` has an event at its newest point ``t`` (both sides of the jump stored), or at
+        its point ``at`` (an unannounced discontinuity inside the step after it): record it,
+        cut the trajectories it reaches there (extrapolation restarts, steps land on it), and
+        re-synchronize — roll back to ``t`` the sub-models past it that the event reaches
         (:attr:`resync` ``"partial"``) or all of them (``"complete"``), thesis 4.3.5."""
         tr = self.tracks[k]
-        t = tr.t
-        tr.segment = len(tr.times) - 1
-        tr.states[len(tr.times) - 1] = self._guard(k, t, self.system.models[k].save_state)
+        if at is None:
+            at = len(tr.times) - 1
+            tr.states[at] = self._guard(k, tr.t, self.system.models[k].save_state)
+        t = tr.times[at]
+        tr.segment = at
         self.state_fired.append(Event(t, tr.name, kind, payload))
         if sum(e.t == t for e in self.state_fired) > MAX_EVENTS:
             names = ", ".join(sorted({e.source for e in self.state_fired if e.t == t}))
@@ -790,7 +800,7 @@ class Multirate:
             elif other.t == t:
                 other.segment = len(other.times) - 1
         for c in affected:  # at the event now: step control starts again (see _Stepper.act)
-            if self.tracks[c].t == t:
+            if self.tracks[c].t == t or c == k:
                 self.tracks[c].h = min(self.tracks[c].h, self.h0)
 
     def _judge(self, tr: Track, t: float, h: float, y: np.ndarray, inputs: np.ndarray,
@@ -832,7 +842,7 @@ class Multirate:
             h_next = 0.5 * h
         spent_out = 0.0 if gain == 0.0 or startup else \
             float(np.max(gain * h * e / (pol.scale(y) / pol.tol)))
-        return _Verdict(h_next, why, spent_out, fed * pol.tol)
+        return _Verdict(h_next, why, spent_out, fed * pol.tol, ratio, power)
 
     def _failed_trial(self, tr: Track, exc: SubModelError, token: Any, t: float,
                       h: float) -> float:
@@ -968,6 +978,35 @@ class Multirate:
             for c, j in enumerate(range(sl.start, sl.stop)):
                 out[i, c] = self._trajectory(j, np.array([t]))[0][0]
         return out
+
+
+SUDDEN = 16.0
+"""A step that had to shrink this many times below the sub-model's previous accepted step, with
+its error falling far slower than a smooth trajectory's would, crossed a discontinuity."""
+
+
+def _discontinuity(chain: list[tuple[float, _Verdict]], h: float, accepted: _Verdict,
+                   previous: float | None) -> bool:
+    """Whether the rejections before an accepted step of ``h`` show an unannounced
+    discontinuity inside the last rejected step (Gear and Østerby's test, for black boxes).
+
+    On a smooth trajectory the consumer-facing error ratio falls like ``h^power`` (4 or 5)
+    as the step shrinks; across a jump in the trajectory or one of its first derivatives it
+    falls like ``h^0 … h^2``. So: the step had to shrink by :data:`SUDDEN` or more below the
+    previous accepted step (the dynamics did not change gradually), and between the first
+    rejection and the accepted step the ratio fell with an observed power below
+    ``power − 1.5``. The accepted step then ends at or past the jump, or just before it.
+    """
+    tried = [(hh, v) for hh, v in chain if v.ratio > 1.0]  # rejected for the trajectory
+    if previous is None or len(tried) < 2 or h * SUDDEN > previous:
+        return False
+    (h0, first), (h1, last) = tried[0], tried[-1]
+    powers = []
+    if h0 > h1 and first.ratio > last.ratio:
+        powers.append(math.log(first.ratio / last.ratio) / math.log(h0 / h1))
+    if h0 > h and 0.0 < accepted.ratio < first.ratio:
+        powers.append(math.log(first.ratio / accepted.ratio) / math.log(h0 / h))
+    return bool(powers) and min(powers) < first.power - 1.5
 
 
 def _segment_range(times: list[float], lo: float, hi: float) -> tuple[int, int]:

@@ -78,3 +78,13 @@ def test_the_rerun_estimate_sees_decaying_errors(name) -> None:
     err = result.error.max_scaled
     assert 0.2 <= result.error_estimate / err <= 5.0, result.error_estimate / err
     assert 0.3 * result.calls_total < result.estimate_calls < result.calls_total
+
+
+# measured err/tol at the quick horizon: 0.57 (tol 1e-4), 0.51 (tol 1e-6), the jump found at
+# 0.9939 s; full horizon 5.2 / 549 x tol before the master looked for unannounced jumps
+@pytest.mark.parametrize("tol", [1e-4, 1e-6])
+def test_multirate_finds_an_unannounced_jump(tol) -> None:
+    result = _run("quarter_car_unannounced", "multirate", tol)
+    assert 0.1 <= result.error.max_scaled / tol <= 10.0, result.error.max_scaled / tol
+    found = [e.t for e in result.events if e.kind == "discontinuity"]
+    assert found and all(0.98 <= t <= 1.0 for t in found), found
