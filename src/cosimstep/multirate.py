@@ -589,35 +589,9 @@ class Multirate:
         tr = self.tracks[k]
         if self.verify(k):
             return False
-        model = self.system.models[k]
-        pol = tr.policy
         t = tr.t
-        reach = self._reach(k, t)
-        chain: list[tuple[float, _Verdict]] = []  # this step's rejections (h, verdict)
-        while True:
-            h = min(tr.h, model.capabilities.max_step, pol.hmax, reach)
-            lands = h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h
-            if lands:
-                h = landing - t
-            token = self._guard(k, t, model.save_state)
-            try:
-                y, slope, inputs, extrapolated, left, step = self._trial(k, token, t, h)
-            except SubModelError as exc:
-                tr.h = self._failed_trial(tr, exc, token, t, h)
-                continue
-            lands, h = lands and step == h, step
-            # the slope at an event belongs to the next segment: no alias check there
-            verdict = self._judge(tr, t, h, y if left is None else left, inputs, slope,
-                                  (lands and landing < self.until) or left is not None)
-            if verdict.why is None:
-                break
-            chain.append((h, verdict))
-            tr.rejected += 1
-            if self.on_attempt is not None:
-                self.on_attempt(tr.name, t, h, False)
-            self._guard(k, t, model.restore_state, token)
-            pol.check(t, h, verdict.h_next, verdict.why)
-            tr.h = verdict.h_next
+        trial, chain = self._accepted_trial(k, t, landing)
+        token, h, lands, y, slope, inputs, extrapolated, left, verdict = trial
         tr.accepted += 1
         tr.spent_out += verdict.spent_out
         tr.spent_in += verdict.spent_in
@@ -637,6 +611,39 @@ class Multirate:
         elif sudden and not lands:
             self._event(k, "discontinuity", {}, at=len(tr.times) - 2)
         return lands
+
+    def _accepted_trial(self, k: int, t: float, landing: float) -> tuple[tuple, list]:
+        """Trial steps of ``k`` from ``t`` until one is accepted: ``(token, h, lands, y,
+        slope, inputs, extrapolated, left, verdict)`` of that one, and the rejections before
+        it as ``(h, verdict)`` (for :func:`_discontinuity`)."""
+        tr, model = self.tracks[k], self.system.models[k]
+        pol = tr.policy
+        reach = self._reach(k, t)
+        chain: list[tuple[float, _Verdict]] = []
+        while True:
+            h = min(tr.h, model.capabilities.max_step, pol.hmax, reach)
+            lands = h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h
+            if lands:
+                h = landing - t
+            token = self._guard(k, t, model.save_state)
+            try:
+                y, slope, inputs, extrapolated, left, step = self._trial(k, token, t, h)
+            except SubModelError as exc:
+                tr.h = self._failed_trial(tr, exc, token, t, h)
+                continue
+            lands, h = lands and step == h, step
+            # the slope at an event belongs to the next segment: no alias check there
+            verdict = self._judge(tr, t, h, y if left is None else left, inputs, slope,
+                                  (lands and landing < self.until) or left is not None)
+            if verdict.why is None:
+                return (token, h, lands, y, slope, inputs, extrapolated, left, verdict), chain
+            chain.append((h, verdict))
+            tr.rejected += 1
+            if self.on_attempt is not None:
+                self.on_attempt(tr.name, t, h, False)
+            self._guard(k, t, model.restore_state, token)
+            pol.check(t, h, verdict.h_next, verdict.why)
+            tr.h = verdict.h_next
 
     def _reach(self, k: int, t: float) -> float:
         """How far past ``t`` model ``k`` may step on its partners' extrapolated trajectories.
