@@ -443,10 +443,12 @@ class Multirate:
             overlap = min(other.t, self.tracks[k].t) - t0
             gain = other.gain if other.gain is not None else INITIAL_GAIN
             y = other.rows[-1]
-            ratio, _ = other.policy.ratio(gain * overlap * 0.5 * moved * other.policy.scale(y),
-                                          y, overlap)
+            kept = gain * overlap * 0.5 * moved  # scaled: the error it keeps if not rolled back
+            ratio, _ = other.policy.ratio(kept * other.policy.scale(y), y, overlap)
             if ratio > 1.0:
                 rolled |= self._rollback(c, t0, k, rounds)
+            else:  # within its tolerance, but an error all the same: the run's estimate has it
+                other.spent_in += kept * other.policy.tol
         return rolled
 
     def _segment_start(self, tr: Track) -> int:
@@ -621,7 +623,7 @@ class Multirate:
         reach = self._reach(k, t)
         chain: list[tuple[float, _Verdict]] = []
         while True:
-            h = min(tr.h, model.capabilities.max_step, pol.hmax, reach)
+            h = self._meet(k, t, min(tr.h, model.capabilities.max_step, pol.hmax, reach))
             lands = h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h
             if lands:
                 h = landing - t
@@ -644,6 +646,22 @@ class Multirate:
             self._guard(k, t, model.restore_state, token)
             pol.check(t, h, verdict.h_next, verdict.why)
             tr.h = verdict.h_next
+
+    def _meet(self, k: int, t: float, h: float) -> float:
+        """The step ``h``, or shorter to end where a partner already is, when that costs at
+        most half of it: a step that reads only what its partners have computed is not
+        pending and needs no correction — one call for at least half the length instead of
+        two for the whole, so never more calls per unit time — and has no extrapolation
+        error. With several partners, meeting one still removes its extrapolation (on the
+        triple pendulum, also meeting only when every partner is then covered spent 1.2-1.3x
+        more calls). A slow sub-model whose partners are far behind its step still
+        extrapolates them (multi-rate)."""
+        meet = h
+        for s in self._sources(k) - {k}:
+            other = self.tracks[s]
+            if not other.discrete and 0.5 * h <= other.t - t < meet:
+                meet = other.t - t
+        return meet
 
     def _reach(self, k: int, t: float) -> float:
         """How far past ``t`` model ``k`` may step on its partners' extrapolated trajectories.

@@ -34,10 +34,11 @@ def test_mixed_pendulum_slow_bar_calls_less_and_error_tracks_tol(mixed) -> None:
     assert result.success
     assert 0.01 <= result.error.max_abs / 1e-4 <= 10.0, result.error.max_abs  # measured 0.07
     slow, fast = result.models["bar1"], result.models["bar2"]
-    # thesis fig. 61: each bar its own step. Measured 553 / 540 calls: since each step must
-    # also resolve its inputs, the slow bar follows the fast bar's motion it reads (10 s:
-    # 1847 / 1850); the steps differ, the counts do not
-    assert slow.calls <= 1.05 * fast.calls
+    # thesis fig. 61: each bar its own step, the slow bar's longer. Measured 144 / 163
+    # accepted steps; in calls 276 / 239, since the bar that leads extrapolates and pays the
+    # corrections while the other meets it (Multirate._meet); each step must also resolve its
+    # inputs, so the slow bar follows the fast bar's motion it reads
+    assert slow.accepted < fast.accepted
     for name, stats in result.models.items():
         # every call is an accepted step, a rejected attempt or a correction re-run
         assert stats.calls == stats.accepted + stats.rejected + stats.corrections, name
