@@ -88,12 +88,16 @@ def main() -> None:
               "timed_out (exit 1) with everything computed so far stored.")
 @click.option("--max-calls", type=int, metavar="N", help="Budget of sub-model calls, likewise.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON summary object.")
+@click.option("-v", "--verbose", is_flag=True, help="A failed run also prints its traceback, "
+              "the sub-model's own exception included (on stderr).")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar and only the status line "
+              "(the exit code says the rest).")
 def run(system: str, until: float | None, master: str | None, extrapolation: int | None,
         interpolation: str | None, resync: str | None, controller: str | None,
         step: float | None, tol: float | None, estimate: str, seed: int | None,
         options: tuple[str, ...], params: tuple[str, ...], starts: tuple[str, ...],
         out: str | None, no_store: bool, max_wall: float | None, max_calls: int | None,
-        as_json: bool) -> None:
+        as_json: bool, verbose: bool, quiet: bool) -> None:
     """Co-simulate SYSTEM (a TOML system file or an SSP archive, .ssp).
 
     With --tol and no --controller the default adaptive controller runs.
@@ -112,8 +116,14 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
         _config_exit(exc)
     result = _run(spec, master, extrapolation, controller, step, tol, seed, out,
                   _options(options), interpolation, estimate, store=not no_store,
-                  budget={"max_wall": max_wall, "max_calls": max_calls}, resync=resync)
-    _report(result, as_json)
+                  budget={"max_wall": max_wall, "max_calls": max_calls}, resync=resync,
+                  progress=False if quiet else None)
+    if quiet and not as_json:
+        click.echo(f"status: {result.status} — {result.message}")
+    else:
+        _report(result, as_json)
+    if verbose and result.traceback:
+        click.echo(result.traceback, err=True, nl=False)
     sys.exit(0 if result.success else EXIT_FAILED)
 
 
@@ -159,7 +169,7 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
          out: str | None, options: dict[str, Any] | None = None,
          interpolation: str | None = None, estimate: str = "sum", *,
          store: bool = True, budget: dict[str, Any] | None = None,
-         resync: str | None = None) -> SimulationResult:
+         resync: str | None = None, progress: bool | None = None) -> SimulationResult:
     opts = _master_options(spec, master, extrapolation, interpolation, resync)
     settings = _controller_settings(spec, controller, step, tol, seed, options)
     name = settings.pop("name", None)
@@ -169,7 +179,7 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
     db = (out or f"{spec.name}.db") if store else None
     return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=db,
                     name=spec.name, config={"source": spec.source, "system": spec.raw},
-                    progress=None, estimate=estimate, **(budget or {}))
+                    progress=progress, estimate=estimate, **(budget or {}))
 
 
 def _controller(name: str | None, settings: dict[str, Any], source: str) -> Any:

@@ -68,6 +68,9 @@ class SimulationResult:
     """Calls the estimate cost (the looser run of ``estimate="rerun"``), not in ``calls``."""
     events: list[Event] = field(default_factory=list)
     """The events of discrete-event sub-models, in time order (:mod:`cosimstep.events`)."""
+    traceback: str | None = field(default=None, repr=False)
+    """A failed run's traceback, the sub-model's own exception included (``run -v`` prints
+    it; the message names the model, the time and the reason)."""
 
     @property
     def success(self) -> bool:

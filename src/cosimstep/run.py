@@ -18,6 +18,7 @@ import signal
 import sys
 import threading
 import time
+import traceback
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -447,6 +448,8 @@ class Run:
                     bar.close()
         wall = time.perf_counter() - wall0
         result = self._result(status, message, wall, reference, sink)
+        if failure is not None and status == "failed":
+            result.traceback = "".join(traceback.format_exception(failure))
         if amend is not None:
             amend(result)
         if sink is not None:

@@ -102,6 +102,23 @@ def test_failed_run_exits_1(tmp_path):
     assert out["steps_accepted"] == 3
 
 
+def test_verbose_prints_the_sub_models_traceback_and_quiet_one_line(tmp_path):
+    _helper_models(tmp_path)
+    (tmp_path / "s.toml").write_text(
+        'until = 1.0\n[models.clock]\ntype = "python"\nclass = "models.py:Clock"\n'
+        'parameters = { fail_at = 0.3 }\n[controller]\nname = "fixed"\nstep = 0.1\n')
+    args = ["run", str(tmp_path / "s.toml"), "--no-store"]
+    plain = CliRunner().invoke(main, args)
+    verbose = CliRunner().invoke(main, [*args, "-v"])
+    quiet = CliRunner().invoke(main, [*args, "-q"])
+    assert plain.exit_code == verbose.exit_code == quiet.exit_code == 1
+    assert "Traceback" not in plain.output
+    # the sub-model's own frame (helpers.py, where Clock raises) and the master's summary line
+    assert "Traceback" in verbose.output and "helpers.py" in verbose.output
+    assert "status: failed" in verbose.output
+    assert quiet.output.count("\n") == 1 and quiet.output.startswith("status: failed — ")
+
+
 def test_plot_writes_figure(examples, tmp_path):
     db = tmp_path / "t.db"
     runner = CliRunner()
