@@ -15,6 +15,7 @@ from typing import Any
 
 import click
 
+from cosimstep.adapters.fmu_base import set_fmu_logging
 from cosimstep.config import SystemSpec, load_system
 from cosimstep.controllers import (
     ADAPTIVE,
@@ -88,6 +89,8 @@ def main() -> None:
               "timed_out (exit 1) with everything computed so far stored.")
 @click.option("--max-calls", type=int, metavar="N", help="Budget of sub-model calls, likewise.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON summary object.")
+@click.option("--fmu-logging", is_flag=True, help="Instantiate FMUs with logging on and "
+              "echo every message they log to stderr as it comes.")
 @click.option("-v", "--verbose", is_flag=True, help="A failed run also prints its traceback, "
               "the sub-model's own exception included (on stderr).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar and only the status line "
@@ -97,7 +100,7 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
         step: float | None, tol: float | None, estimate: str, seed: int | None,
         options: tuple[str, ...], params: tuple[str, ...], starts: tuple[str, ...],
         out: str | None, no_store: bool, max_wall: float | None, max_calls: int | None,
-        as_json: bool, verbose: bool, quiet: bool) -> None:
+        as_json: bool, fmu_logging: bool, verbose: bool, quiet: bool) -> None:
     """Co-simulate SYSTEM (a TOML system file or an SSP archive, .ssp).
 
     With --tol and no --controller the default adaptive controller runs.
@@ -110,6 +113,7 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
     if bad:
         _config_exit(ConfigurationError(bad, "the command line"))
     overrides = {"parameters": _values(params, "--param"), "start": _values(starts, "--start")}
+    set_fmu_logging(fmu_logging)
     try:
         spec = load_system(system, until, overrides)
     except ConfigurationError as exc:

@@ -42,6 +42,7 @@ from cosimstep.adapters.fmu_base import (
     FmuError,
     check_fmu,
     fmu_interface,
+    fmu_logging,
     set_values,
 )
 from cosimstep.submodel import Capabilities
@@ -130,7 +131,7 @@ class FmuSubModel(FmuBase):
             self.terminate()
         try:
             fmu = self._load(Fmi2Slave)
-            fmu.instantiate(callbacks=self._callbacks)
+            fmu.instantiate(callbacks=self._callbacks, loggingOn=fmu_logging())
             fmu.setupExperiment(tolerance=self.tolerance, startTime=t0)
             set_values(fmu, self._start_values(inputs=False), "2.0")
             fmu.enterInitializationMode()

@@ -20,7 +20,7 @@ import numpy as np
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi3 import FMU3Slave
 
-from cosimstep.adapters.fmu_base import FMI3_CS, FmuBase, set_values
+from cosimstep.adapters.fmu_base import FMI3_CS, FmuBase, fmu_logging, set_values
 from cosimstep.submodel import Capabilities
 
 __all__ = ["Fmu3SubModel"]
@@ -64,7 +64,8 @@ class Fmu3SubModel(FmuBase):
             self.terminate()
         try:
             fmu = self._load(FMU3Slave)
-            fmu.instantiate(logMessage=lambda env, status, category, message:
+            fmu.instantiate(loggingOn=fmu_logging(),
+                            logMessage=lambda env, status, category, message:
                             self._logger(status, message))
             set_values(fmu, self._start_values(inputs=False), "3.0")
             fmu.enterInitializationMode(tolerance=self.tolerance, startTime=t0)

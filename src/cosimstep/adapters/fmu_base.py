@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import shutil
+import sys
 import threading
 import weakref
 import zipfile
@@ -297,6 +298,7 @@ class FmuBase(SubModel):
     # -- errors ----------------------------------------------------------------------------------
     def _logger(self, status: int, message: bytes | str | None) -> None:
         self._log.append(_log_line(status, message))
+        _echo(self.name, self._log[-1])
 
     def _fmi2_callbacks(self) -> fmi2CallbackFunctions:
         """FMI 2.0 callbacks whose logger keeps the FMU's messages for :meth:`_error`.
@@ -304,11 +306,12 @@ class FmuBase(SubModel):
         The logger holds the log, not the instance, so the sub-model is not part of a reference
         cycle through its own callbacks.
         """
-        log = self._log
+        log, name = self._log, self.name
 
         def logger(env: Any, instance: bytes, status: int, category: bytes,
                    message: bytes) -> None:
             log.append(_log_line(status, message))
+            _echo(name, log[-1])
 
         callbacks = fmi2CallbackFunctions()
         callbacks.logger = fmi2CallbackLoggerTYPE(logger)
@@ -484,6 +487,26 @@ class _Unpacked:
 
 
 _UNPACKED = _Unpacked()
+
+
+_LOGGING = [False]
+
+
+def set_fmu_logging(on: bool) -> None:
+    """Instantiate FMUs from now on with ``loggingOn`` and echo each message they log to
+    stderr as it comes, prefixed by the instance name (``run --fmu-logging``). Off by default:
+    the messages are kept either way and quoted when a call fails."""
+    _LOGGING[0] = bool(on)
+
+
+def fmu_logging() -> bool:
+    """Whether FMUs are instantiated with ``loggingOn`` (:func:`set_fmu_logging`)."""
+    return _LOGGING[0]
+
+
+def _echo(name: str, line: str) -> None:
+    if _LOGGING[0]:
+        print(f"{name}: {line}", file=sys.stderr, flush=True)
 
 
 def _log_line(status: int, message: bytes | str | None) -> str:

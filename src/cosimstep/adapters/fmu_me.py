@@ -50,7 +50,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Model, fmi2False
 from scipy.integrate import solve_ivp
 
-from cosimstep.adapters.fmu_base import FMI2_ME, FmuBase, set_values
+from cosimstep.adapters.fmu_base import FMI2_ME, FmuBase, fmu_logging, set_values
 from cosimstep.adapters.ode import INPUT_ORDER, SolveIvp, _taylor
 from cosimstep.submodel import Capabilities
 
@@ -150,7 +150,7 @@ class MeSubModel(FmuBase):
             self.terminate()
         try:
             fmu = self._load(FMU2Model)
-            fmu.instantiate(callbacks=self._callbacks)
+            fmu.instantiate(callbacks=self._callbacks, loggingOn=fmu_logging())
             fmu.setupExperiment(tolerance=self.solver.rtol, startTime=t0)
             set_values(fmu, self._start_values(inputs=False), "2.0")
             fmu.enterInitializationMode()

@@ -173,6 +173,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     } else {
         memcpy(inst->s.v, START, sizeof START);
         inst->mode = MODE_INSTANTIATED;
+        log_status(inst, fmi2OK, "instantiated, GUID %s", MODEL_GUID);
         return inst;
     }
     functions->freeMemory(inst->name);
