@@ -78,7 +78,8 @@ def load_system(path: str | Path, until: float | None = None,
     ``overrides`` changes values without editing the file: ``{"parameters": {NAME: value},
     "start": {NAME: value}}``, where NAME is a shared value (``l2``) or one sub-model's
     (``bar2.l2``); a name nothing reads is reported like a misspelt one in the file. A path
-    ending in ``.ssp`` is read as an SSP archive (:func:`cosimstep.ssp.load_ssp`).
+    ending in ``.ssp`` is read as an SSP archive (:func:`cosimstep.ssp.load_ssp`), one ending in
+    ``.fmu`` as a system of that FMU alone (:func:`_single_fmu`).
     """
     path = Path(path)
     src = str(path)
@@ -90,7 +91,7 @@ def load_system(path: str | Path, until: float | None = None,
                                               "set SSP values in its parameter bindings")],
                                      src)
         return load_ssp(path, until)
-    raw = _read_toml(path)
+    raw = _single_fmu(path) if path.suffix.lower() == ".fmu" else _read_toml(path)
     problems: list[Problem] = []
     loc = lambda key: f"{src}: {key}"  # noqa: E731 - tiny local formatter
     raw = _known_top(raw, loc, problems)
@@ -105,6 +106,31 @@ def load_system(path: str | Path, until: float | None = None,
     system = _build_system(raw, header, changes, path.parent, loc, problems, used)
     return finish(raw, header, system, Origin(src, loc, path.stem, until), problems, raw,
                   changes=changes, used=used)
+
+
+def _single_fmu(path: Path) -> dict[str, Any]:
+    """A system file's content for one FMU run alone, as ``fmpy simulate`` runs it: until its
+    default experiment's stop time (1 s without one), at a fixed step of its default step size
+    (or 1/500 of the run, FMPy's output interval); its inputs keep their start values."""
+    from fmpy import read_model_description
+
+    if not path.is_file():
+        raise ConfigurationError([Problem(str(path), "no such file",
+                                          "give the path of an existing .fmu")], str(path))
+    try:
+        experiment = read_model_description(str(path)).defaultExperiment
+    except Exception as exc:  # not a zip, no modelDescription.xml, bad XML
+        raise ConfigurationError([Problem(str(path), f"cannot read the FMU: {exc}",
+                                          "check the file with `cosimstep info`")],
+                                 str(path)) from exc
+    start = float(getattr(experiment, "startTime", None) or 0.0)
+    stop = float(getattr(experiment, "stopTime", None) or start + 1.0)
+    step = getattr(experiment, "stepSize", None)
+    step = float(step) if step else (stop - start) / 500
+    name = "".join(c if c.isalnum() or c == "_" else "_" for c in path.stem) or "fmu"
+    return {"name": name, "until": stop,
+            "models": {name: {"type": "fmu", "path": str(path.resolve())}},
+            "controller": {"name": "fixed", "step": step}}
 
 
 def _override(raw: dict[str, Any], overrides: dict[str, dict[str, Any]],
