@@ -89,6 +89,10 @@ def main() -> None:
               "timed_out (exit 1) with everything computed so far stored.")
 @click.option("--max-calls", type=int, metavar="N", help="Budget of sub-model calls, likewise.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON summary object.")
+@click.option("--inputs", "inputs_csv", type=click.Path(dir_okay=False), metavar="CSV",
+              help="One FMU run alone (SYSTEM is an .fmu): its inputs from a CSV file, first "
+              "column time, the others named after the inputs (linear between rows, held "
+              "outside).")
 @click.option("--fmu-logging", is_flag=True, help="Instantiate FMUs with logging on and "
               "echo every message they log to stderr as it comes.")
 @click.option("-v", "--verbose", is_flag=True, help="A failed run also prints its traceback, "
@@ -100,7 +104,8 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
         step: float | None, tol: float | None, estimate: str, seed: int | None,
         options: tuple[str, ...], params: tuple[str, ...], starts: tuple[str, ...],
         out: str | None, no_store: bool, max_wall: float | None, max_calls: int | None,
-        as_json: bool, fmu_logging: bool, verbose: bool, quiet: bool) -> None:
+        as_json: bool, inputs_csv: str | None, fmu_logging: bool, verbose: bool,
+        quiet: bool) -> None:
     """Co-simulate SYSTEM (a TOML system file or an SSP archive, .ssp).
 
     With --tol and no --controller the default adaptive controller runs.
@@ -115,7 +120,7 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
     overrides = {"parameters": _values(params, "--param"), "start": _values(starts, "--start")}
     set_fmu_logging(fmu_logging)
     try:
-        spec = load_system(system, until, overrides)
+        spec = load_system(system, until, overrides, inputs=inputs_csv)
     except ConfigurationError as exc:
         _config_exit(exc)
     result = _run(spec, master, extrapolation, controller, step, tol, seed, out,

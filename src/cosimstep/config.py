@@ -18,6 +18,7 @@ import math
 import sys
 import tomllib
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -72,17 +73,22 @@ KNOWN_TOP = {"name", "description", "until", "parameters", "start", "solver", "m
 
 
 def load_system(path: str | Path, until: float | None = None,
-                overrides: dict[str, dict[str, Any]] | None = None) -> SystemSpec:
+                overrides: dict[str, dict[str, Any]] | None = None,
+                inputs: str | Path | None = None) -> SystemSpec:
     """Read and check a system file; raise :class:`ConfigurationError` with every problem.
 
     ``overrides`` changes values without editing the file: ``{"parameters": {NAME: value},
     "start": {NAME: value}}``, where NAME is a shared value (``l2``) or one sub-model's
     (``bar2.l2``); a name nothing reads is reported like a misspelt one in the file. A path
     ending in ``.ssp`` is read as an SSP archive (:func:`cosimstep.ssp.load_ssp`), one ending in
-    ``.fmu`` as a system of that FMU alone (:func:`_single_fmu`).
+    ``.fmu`` as a system of that FMU alone (:func:`_single_fmu`), its inputs read from the
+    CSV file ``inputs`` if given (:class:`~cosimstep.adapters.table.InputTable`).
     """
     path = Path(path)
     src = str(path)
+    if inputs is not None and path.suffix.lower() != ".fmu":
+        raise ConfigurationError([Problem("--inputs", "a CSV of inputs is for one FMU run alone",
+                                          "in a system file, add a timetable model")], src)
     if path.suffix.lower() == ".ssp":
         from cosimstep.ssp import load_ssp
 
@@ -104,6 +110,8 @@ def load_system(path: str | Path, until: float | None = None,
             changes.append((parsed.t, parsed.set))
     used: set[str] = set()
     system = _build_system(raw, header, changes, path.parent, loc, problems, used)
+    if inputs is not None and not problems:
+        _feed_from_table(raw, system, inputs, problems)
     return finish(raw, header, system, Origin(src, loc, path.stem, until), problems, raw,
                   changes=changes, used=used)
 
@@ -131,6 +139,38 @@ def _single_fmu(path: Path) -> dict[str, Any]:
     return {"name": name, "until": stop,
             "models": {name: {"type": "fmu", "path": str(path.resolve())}},
             "controller": {"name": "fixed", "step": step}}
+
+
+def _feed_from_table(raw: dict[str, Any], system: System, csv_path: str | Path,
+                     problems: list[Problem]) -> None:
+    """Connect every column of the CSV to the FMU input of that name (model ``inputs``).
+
+    The table steps first (Gauss–Seidel) and lands on its rows (time events), so the FMU's
+    input over each step is interpolated through the table's fresh values: exact on every
+    linear segment, as FMPy's inputs with their derivatives are.
+    """
+    from cosimstep.adapters.table import InputTable
+
+    name = raw["name"]
+    try:
+        table = InputTable.from_csv(csv_path)
+    except ConfigurationError as exc:
+        problems.extend(exc.problems)
+        return
+    fmu = system.models[name]
+    known = [p.name for p in fmu.inputs]
+    for port in table.outputs:
+        if port.name not in known:
+            problems.append(Problem(f"{csv_path}: column {port.name}", f"'{name}' has no input "
+                                    f"'{port.name}'", f"its inputs: {', '.join(known) or 'none'}"))
+    if not problems:
+        units = {p.name: p.unit for p in fmu.inputs}  # the CSV is in the inputs' own units
+        table.outputs = tuple(replace(p, unit=units[p.name]) for p in table.outputs)
+        source = "inputs" if name != "inputs" else "table"
+        raw["master"] = {"name": "gauss-seidel", "order": [source, name]}
+        system.add(source, table, f"{csv_path}")
+        for port in table.outputs:
+            system.connect(f"{source}.{port.name}", f"{name}.{port.name}", where=str(csv_path))
 
 
 def _override(raw: dict[str, Any], overrides: dict[str, dict[str, Any]],
