@@ -140,10 +140,14 @@ class Store:
         self._seq += len(times)
 
     def flush(self) -> None:
+        """Write the buffered rows and commit. Every row is written idempotently (``INSERT OR
+        REPLACE``): a signal (Ctrl-C, SIGTERM) can land after the rows were written and before
+        the buffers were cleared, and the next flush then hands them again."""
         db = self._db
         db.executemany("INSERT OR REPLACE INTO point VALUES (?, ?, ?)", self._points)
         db.executemany("INSERT OR REPLACE INTO sample VALUES (?, ?, ?, ?)", self._samples)
-        db.executemany("INSERT INTO attempt VALUES (?, ?, ?, ?, ?, ?, ?)", self._attempts)
+        db.executemany("INSERT OR REPLACE INTO attempt VALUES (?, ?, ?, ?, ?, ?, ?)",
+                       self._attempts)
         db.execute("UPDATE run SET heartbeat=? WHERE id=?", (time.time(), self.run_id))
         db.commit()
         self._points.clear()
