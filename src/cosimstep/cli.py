@@ -89,6 +89,9 @@ def main() -> None:
               "timed_out (exit 1) with everything computed so far stored.")
 @click.option("--max-calls", type=int, metavar="N", help="Budget of sub-model calls, likewise.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON summary object.")
+@click.option("--call-timeout", type=float, metavar="S", help="Seconds one sub-model call may "
+              "take before the run ends failed with the results so far (0: no limit; default: "
+              "the file's [master] call_timeout, else none).")
 @click.option("--inputs", "inputs_csv", type=click.Path(dir_okay=False), metavar="CSV",
               help="One FMU run alone (SYSTEM is an .fmu): its inputs from a CSV file, first "
               "column time, the others named after the inputs (linear between rows, held "
@@ -104,8 +107,8 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
         step: float | None, tol: float | None, estimate: str, seed: int | None,
         options: tuple[str, ...], params: tuple[str, ...], starts: tuple[str, ...],
         out: str | None, no_store: bool, max_wall: float | None, max_calls: int | None,
-        as_json: bool, inputs_csv: str | None, fmu_logging: bool, verbose: bool,
-        quiet: bool) -> None:
+        as_json: bool, call_timeout: float | None, inputs_csv: str | None, fmu_logging: bool,
+        verbose: bool, quiet: bool) -> None:
     """Co-simulate SYSTEM (a TOML system file or an SSP archive, .ssp).
 
     With --tol and no --controller the default adaptive controller runs.
@@ -115,6 +118,9 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
                                     ("--max-wall", max_wall, "e.g. --max-wall 60"),
                                     ("--max-calls", max_calls, "e.g. --max-calls 100000"))
            if value is not None and not (math.isfinite(value) and value > 0)]
+    if call_timeout is not None and not (math.isfinite(call_timeout) and call_timeout >= 0):
+        bad.append(Problem("--call-timeout", f"must be 0 (no limit) or positive, got "
+                           f"{call_timeout}", "e.g. --call-timeout 60"))
     if bad:
         _config_exit(ConfigurationError(bad, "the command line"))
     overrides = {"parameters": _values(params, "--param"), "start": _values(starts, "--start")}
@@ -126,7 +132,7 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
     result = _run(spec, master, extrapolation, controller, step, tol, seed, out,
                   _options(options), interpolation, estimate, store=not no_store,
                   budget={"max_wall": max_wall, "max_calls": max_calls}, resync=resync,
-                  progress=False if quiet else None)
+                  progress=False if quiet else None, call_timeout=call_timeout)
     if quiet and not as_json:
         click.echo(f"status: {result.status} — {result.message}")
     else:
@@ -178,8 +184,9 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
          out: str | None, options: dict[str, Any] | None = None,
          interpolation: str | None = None, estimate: str = "sum", *,
          store: bool = True, budget: dict[str, Any] | None = None,
-         resync: str | None = None, progress: bool | None = None) -> SimulationResult:
-    opts = _master_options(spec, master, extrapolation, interpolation, resync)
+         resync: str | None = None, progress: bool | None = None,
+         call_timeout: float | None = None) -> SimulationResult:
+    opts = _master_options(spec, master, extrapolation, interpolation, resync, call_timeout)
     settings = _controller_settings(spec, controller, step, tol, seed, options)
     name = settings.pop("name", None)
     ctrl = _controller(name, settings, spec.source)
@@ -217,12 +224,15 @@ def _plain_type_error(exc: TypeError) -> str:
 
 
 def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | None,
-                    interpolation: str | None, resync: str | None = None) -> MasterOptions:
-    """The file's ``[master]`` with the command line's choices on top (exit 2 if invalid)."""
+                    interpolation: str | None, resync: str | None = None,
+                    call_timeout: float | None = None) -> MasterOptions:
+    """The file's ``[master]`` with the command line's choices on top (exit 2 if invalid);
+    ``call_timeout`` 0 lifts the file's limit."""
     opts = spec.master
+    timeout = opts.call_timeout if call_timeout is None else (call_timeout or None)
     opts = MasterOptions(master or opts.name,
                          opts.extrapolation if extrapolation is None else extrapolation,
-                         opts.order, opts.call_timeout, interpolation or opts.interpolation,
+                         opts.order, timeout, interpolation or opts.interpolation,
                          resync or opts.resync)
     problems = [Problem("master", p, "see `cosimstep run --help`") for p in opts.problems()]
     if problems:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 
 import pytest
 from click.testing import CliRunner
@@ -117,6 +118,23 @@ def test_verbose_prints_the_sub_models_traceback_and_quiet_one_line(tmp_path):
     assert "Traceback" in verbose.output and "helpers.py" in verbose.output
     assert "status: failed" in verbose.output
     assert quiet.output.count("\n") == 1 and quiet.output.startswith("status: failed — ")
+
+
+def test_call_timeout_from_the_command_line(tmp_path):
+    _helper_models(tmp_path)
+    (tmp_path / "s.toml").write_text(
+        'until = 1.0\n[models.clock]\ntype = "python"\nclass = "models.py:Clock"\n'
+        'parameters = { fail_at = 0.3, mode = "hang" }\n'
+        '[controller]\nname = "fixed"\nstep = 0.1\n')
+    args = ["run", str(tmp_path / "s.toml"), "--json", "--out", str(tmp_path / "s.db")]
+    started = time.perf_counter()
+    res = CliRunner().invoke(main, [*args, "--call-timeout", "0.5"])
+    assert time.perf_counter() - started < 10.0  # the sub-model sleeps 30 s
+    out = json.loads(res.output)
+    assert res.exit_code == 1 and out["status"] == "failed"
+    assert "no answer within 0.5 s" in out["message"] and out["steps_accepted"] == 3
+    bad = CliRunner().invoke(main, [*args, "--call-timeout", "-1"])
+    assert bad.exit_code == 2 and "--call-timeout" in bad.output
 
 
 def test_plot_writes_figure(examples, tmp_path):
