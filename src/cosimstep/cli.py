@@ -89,6 +89,10 @@ def main() -> None:
               "timed_out (exit 1) with everything computed so far stored.")
 @click.option("--max-calls", type=int, metavar="N", help="Budget of sub-model calls, likewise.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON summary object.")
+@click.option("--output-interval", type=float, metavar="DT", help="Store the values every DT "
+              "seconds (linear between the run's points) instead of at every point.")
+@click.option("--output-steps", is_flag=True, help="With --output-interval: every accepted "
+              "point as well.")
 @click.option("--call-timeout", type=float, metavar="S", help="Seconds one sub-model call may "
               "take before the run ends failed with the results so far (0: no limit; default: "
               "the file's [master] call_timeout, else none).")
@@ -107,7 +111,8 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
         step: float | None, tol: float | None, estimate: str, seed: int | None,
         options: tuple[str, ...], params: tuple[str, ...], starts: tuple[str, ...],
         out: str | None, no_store: bool, max_wall: float | None, max_calls: int | None,
-        as_json: bool, call_timeout: float | None, inputs_csv: str | None, fmu_logging: bool,
+        as_json: bool, output_interval: float | None, output_steps: bool,
+        call_timeout: float | None, inputs_csv: str | None, fmu_logging: bool,
         verbose: bool, quiet: bool) -> None:
     """Co-simulate SYSTEM (a TOML system file or an SSP archive, .ssp).
 
@@ -116,8 +121,13 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
     bad = [Problem(flag, f"must be a positive number, got {value}", fix)
            for flag, value, fix in (("--until", until, "e.g. --until 10"),
                                     ("--max-wall", max_wall, "e.g. --max-wall 60"),
-                                    ("--max-calls", max_calls, "e.g. --max-calls 100000"))
+                                    ("--max-calls", max_calls, "e.g. --max-calls 100000"),
+                                    ("--output-interval", output_interval,
+                                     "e.g. --output-interval 0.01"))
            if value is not None and not (math.isfinite(value) and value > 0)]
+    if output_steps and output_interval is None:
+        bad.append(Problem("--output-steps", "keeps every point beside a grid",
+                           "give --output-interval DT too (without it every point is stored)"))
     if call_timeout is not None and not (math.isfinite(call_timeout) and call_timeout >= 0):
         bad.append(Problem("--call-timeout", f"must be 0 (no limit) or positive, got "
                            f"{call_timeout}", "e.g. --call-timeout 60"))
@@ -132,7 +142,8 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
     result = _run(spec, master, extrapolation, controller, step, tol, seed, out,
                   _options(options), interpolation, estimate, store=not no_store,
                   budget={"max_wall": max_wall, "max_calls": max_calls}, resync=resync,
-                  progress=False if quiet else None, call_timeout=call_timeout)
+                  progress=False if quiet else None, call_timeout=call_timeout,
+                  output=(output_interval, output_steps))
     if quiet and not as_json:
         click.echo(f"status: {result.status} — {result.message}")
     else:
@@ -185,7 +196,8 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
          interpolation: str | None = None, estimate: str = "sum", *,
          store: bool = True, budget: dict[str, Any] | None = None,
          resync: str | None = None, progress: bool | None = None,
-         call_timeout: float | None = None) -> SimulationResult:
+         call_timeout: float | None = None,
+         output: tuple[float | None, bool] = (None, False)) -> SimulationResult:
     opts = _master_options(spec, master, extrapolation, interpolation, resync, call_timeout)
     settings = _controller_settings(spec, controller, step, tol, seed, options)
     name = settings.pop("name", None)
@@ -195,7 +207,8 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
     db = (out or f"{spec.name}.db") if store else None
     return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=db,
                     name=spec.name, config={"source": spec.source, "system": spec.raw},
-                    progress=progress, estimate=estimate, **(budget or {}))
+                    progress=progress, estimate=estimate, output_interval=output[0],
+                    output_steps=output[1], **(budget or {}))
 
 
 def _controller(name: str | None, settings: dict[str, Any], source: str) -> Any:

@@ -35,7 +35,7 @@ from cosimstep.loops import ControllerLoop, FixedLoop
 from cosimstep.masters import Master, MasterOptions
 from cosimstep.reference import ErrorReport, Reference, error_report
 from cosimstep.result import ModelStats, SimulationResult
-from cosimstep.store import Store
+from cosimstep.store import GridStore, Store
 
 
 @dataclass
@@ -420,10 +420,12 @@ class Run:
 
     def __init__(self, scheme: Scheme, *, store: str | Path | None, name: str,
                  settings: dict[str, Any], progress: bool | None,
-                 budget: Budget | None = None) -> None:
+                 budget: Budget | None = None,
+                 output: tuple[float, bool] | None = None) -> None:
         self.scheme, self.store, self.name = scheme, store, name
         self.settings, self.progress = settings, progress
         self.budget = budget
+        self.output = output  # (interval, keep every step): values stored on a grid
 
     def execute(self, reference: Reference | None,
                 amend: Callable[[SimulationResult], None] | None = None, *,
@@ -432,7 +434,9 @@ class Run:
         the store's summary is written (a re-run error estimate). The failure is raised after
         the store is closed if ``raise_on_failure``."""
         scheme, compiled = self.scheme, self.scheme.compiled
-        sink = Store(self.store) if self.store is not None else None
+        sink: Any = Store(self.store) if self.store is not None else None
+        if sink is not None and self.output is not None:
+            sink = GridStore(sink, self.output[0], scheme.t0, self.output[1])
         if sink is not None:
             sink.begin(self.name, self.settings, compiled.output_names, compiled.output_units)
         wall0 = time.perf_counter()

@@ -37,6 +37,8 @@ def simulate(
     estimate: str = "sum",
     max_wall: float | None = None,
     max_calls: int | None = None,
+    output_interval: float | None = None,
+    output_steps: bool = False,
 ) -> SimulationResult:
     """Co-simulate ``system`` from ``t0`` to ``until``.
 
@@ -68,6 +70,10 @@ def simulate(
     max_wall, max_calls:
         Whole-run budgets: wall-clock seconds and sub-model calls. A run that spends one ends
         with status ``"timed_out"`` and everything it computed so far (stored too).
+    output_interval, output_steps:
+        Store the values every ``output_interval`` seconds (linear between the run's points)
+        instead of at every point, and with ``output_steps`` at every accepted point as well
+        (:class:`~cosimstep.store.GridStore`). The result in memory keeps every point.
     """
     budget = Budget(max_wall, max_calls)
     if estimate not in ("sum", "rerun"):
@@ -80,8 +86,12 @@ def simulate(
                              f"'{controller.name}' has no tolerance")
         looser = _simulate(system, until, _loosened(controller), master, t0, None, None, name,
                            None, False, False, None, budget)
+    if output_interval is not None and not (math.isfinite(output_interval)
+                                            and output_interval > 0):
+        raise ValueError(f"`output_interval` must be positive, got {output_interval}")
+    output = (output_interval, output_steps) if output_interval is not None else None
     return _simulate(system, until, controller, master, t0, reference, store, name, config,
-                     progress, raise_on_failure, looser, budget)
+                     progress, raise_on_failure, looser, budget, output)
 
 
 def _loosened(controller: Controller) -> Controller:
@@ -102,7 +112,8 @@ def _simulate(system: System, until: float, controller: Controller,
               master: MasterOptions | None, t0: float, reference: Reference | None,
               store: str | Path | None, name: str, config: dict[str, Any] | None,
               progress: bool | None, raise_on_failure: bool,
-              looser: SimulationResult | None, budget: Budget | None = None) -> SimulationResult:
+              looser: SimulationResult | None, budget: Budget | None = None,
+              output: tuple[float, bool] | None = None) -> SimulationResult:
     """:func:`simulate` once; ``looser`` is the run at 10× the tolerance for ``"rerun"``."""
     if not (math.isfinite(until) and until > t0):
         raise ValueError(f"`until` ({until}) must be finite and after t0 ({t0})")
@@ -119,8 +130,10 @@ def _simulate(system: System, until: float, controller: Controller,
     scheme = scheme_for(compiled, t0, until, controller, master, events)
     settings = {"t0": t0, "until": until, "master": vars(master),
                 "controller": controller.describe(), **(config or {})}
+    if output is not None:
+        settings["output_interval"], settings["output_steps"] = output
     run = Run(scheme, store=store, name=name, settings=settings, progress=progress,
-              budget=budget)
+              budget=budget, output=output)
     return run.execute(reference, lambda r: _rerun_estimate(r, looser, controller, events),
                        raise_on_failure=raise_on_failure)
 

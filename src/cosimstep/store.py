@@ -22,6 +22,7 @@ interrupted or crashes keeps what it computed up to the last commit.
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import sqlite3
@@ -358,3 +359,105 @@ def _read_own_points(db: sqlite3.Connection, run_id: int,
         own.setdefault(var[vid][0], []).append((t, value))
     return {n: (np.array([p[0] for p in pts]), np.array([p[1] for p in pts]))
             for n, pts in own.items()}
+
+
+class GridStore:
+    """A :class:`Store` that keeps the values on a time grid (``run --output-interval``).
+
+    A five-million-step run wrote 1.14 GB of points; most users want the trajectory every
+    ``interval`` seconds. Each grid time between two stored points gets the values linearly
+    interpolated between them (what FMPy's output interval gives for a fixed-step run), and with
+    ``keep_steps`` every accepted point is kept as well. The points are numbered in time order
+    as written; the monolithic reference is interpolated onto them the same way. The step history
+    is thinned alike (:meth:`add_attempt`); events, own points and the summary go to the store
+    unchanged.
+    """
+
+    def __init__(self, store: Store, interval: float, t0: float,
+                 keep_steps: bool = False) -> None:
+        if not (math.isfinite(interval) and interval > 0):
+            raise ValueError(f"`output_interval` must be positive, got {interval}")
+        self._store, self.interval, self.t0 = store, float(interval), float(t0)
+        self.keep_steps = keep_steps
+        self._next = 0  # the next grid index to write
+        self._count = 0  # points written
+        self._last: tuple[float, np.ndarray] | None = None
+        self._seen: list[float] = []  # every point handed in (for the reference)
+        self.stored: list[float] = []  # the times written
+        self._cells: dict[str | None, int] = {}  # last grid interval with an attempt kept
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._store, name)
+
+    def add_point(self, step: int, t: float, y: np.ndarray) -> None:
+        y = np.asarray(y, dtype=float)
+        self._seen.append(t)
+        eps = 1e-9 * self.interval
+        if self._last is None:
+            lo = -math.inf
+        else:
+            lo, y_lo = self._last
+        while True:
+            g = self.t0 + self._next * self.interval
+            if g > t + eps:
+                break
+            if g > lo + eps or self._last is None:
+                w = 0.0 if self._last is None or t == lo else (g - lo) / (t - lo)
+                row = y if self._last is None or abs(g - t) <= eps else y_lo + w * (y - y_lo)
+                self._write(g, row)
+            self._next += 1
+        if self.keep_steps and (not self.stored or t > self.stored[-1] + eps):
+            self._write(t, y)
+        self._last = (t, y)
+
+    def add_points(self, first_step: int, times: Sequence[float],
+                   rows: Sequence[Sequence[float]]) -> None:
+        for i, (t, y) in enumerate(zip(times, rows)):
+            self.add_point(first_step + i, float(t), np.asarray(y, dtype=float))
+
+    def add_attempt(self, model: str | None, t: float, h: float, accepted: bool,
+                    error: float | None) -> None:
+        """Every rejected attempt; of the accepted ones (unless ``keep_steps``), the first in
+        each grid interval per sub-model: the step history at the grid's resolution."""
+        if accepted and not self.keep_steps and not self._new_interval(model, t):
+            return
+        self._store.add_attempt(model, t, h, accepted, error)
+
+    def add_accepted_attempts(self, times: Sequence[float], steps: Sequence[float]) -> None:
+        if self.keep_steps:
+            self._store.add_accepted_attempts(times, steps)
+            return
+        kept = [(t, h) for t, h in zip(times, steps) if self._new_interval(None, t)]
+        if kept:
+            self._store.add_accepted_attempts(*zip(*kept))
+
+    def _new_interval(self, model: str | None, t: float) -> bool:
+        cell = math.floor((t - self.t0) / self.interval + 1e-9)
+        if self._cells.get(model) == cell:
+            return False
+        self._cells[model] = cell
+        return True
+
+    def _write(self, t: float, y: np.ndarray) -> None:
+        self._store.add_point(self._count, t, y)
+        self.stored.append(t)
+        self._count += 1
+
+    def add_reference(self, values: np.ndarray, variable_ids: Sequence[int]) -> None:
+        """``values`` at the points handed in; written at the points stored."""
+        self._complete()
+        seen = np.asarray(self._seen[:len(values)])
+        at = np.asarray(self.stored)
+        grid = np.column_stack([np.interp(at, seen, values[:, j])
+                                for j in range(values.shape[1])]) if len(seen) else values
+        self._store.add_reference(grid, variable_ids)
+
+    def finish(self, *args: Any, **kwargs: Any) -> None:
+        self._complete()
+        self._store.finish(*args, **kwargs)
+
+    def _complete(self) -> None:
+        """The run's last point, where the grid does not reach it (written once)."""
+        if self._last is not None and (not self.stored
+                                       or self._last[0] > self.stored[-1] + 1e-9 * self.interval):
+            self._write(*self._last)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sqlite3
 
 import numpy as np
+import pytest
 
 from cosimstep import Fixed, load_system, read_run, simulate
 from cosimstep.store import runs
@@ -167,3 +168,45 @@ def test_an_interrupt_after_a_flush_wrote_and_before_it_cleared_raises_nothing(e
     stored = read_run(db)
     assert stored.status == "interrupted"
     assert np.array_equal(stored.times, result.times)
+
+
+@pytest.mark.parametrize("master", ["gauss-seidel", "multirate"])
+def test_output_interval_stores_a_grid(examples, tmp_path, master):
+    import cosimstep
+    from cosimstep.store import read_run
+
+    spec = cosimstep.load_system(examples / "double_pendulum_slow.toml")
+    controller = (cosimstep.Fixed(1e-3) if master == "gauss-seidel"
+                  else cosimstep.make_controller("pc", None, 1e-4))
+    opts = cosimstep.MasterOptions(master, 2)
+    grid = read_run(_simulate_to(spec, controller, opts, tmp_path / "grid.db",
+                                 output_interval=0.01)[1])
+    result, db = _simulate_to(spec, controller, opts, tmp_path / "both.db",
+                              output_interval=0.01, output_steps=True)
+    both = read_run(db)
+    assert np.allclose(grid.times, np.linspace(0.0, 2.0, 201), rtol=0, atol=1e-12)
+    expect = np.column_stack([np.interp(grid.times, result.times, col) for col in result.values.T])
+    assert np.max(np.abs(grid.values - expect)) <= 1e-12
+    ref = np.column_stack([np.interp(grid.times, result.times, col) for col in result.reference.T])
+    assert np.max(np.abs(grid.reference - ref)) <= 1e-12
+    # with every point too: the union, in time order
+    assert np.array_equal(both.times, np.union1d(grid.times, result.times))
+    # the step history at the grid's resolution: the first accepted attempt of each interval
+    # (per sub-model under multirate), every rejected one; all of them with every point
+    accepted = grid.attempts[:, 2] == 1
+    assert (~accepted).sum() == (both.attempts[:, 2] == 0).sum()
+    if master == "gauss-seidel":  # 1 ms steps: every interval has 10, one is kept
+        assert accepted.sum() == 200
+        assert len(both.attempts) == result.steps_accepted + result.steps_rejected
+    else:  # steps mostly over 10 ms: at most one per interval and sub-model, some dropped
+        assert 0 < accepted.sum() < (both.attempts[:, 2] == 1).sum()
+        assert accepted.sum() <= 2 * 200
+
+
+def _simulate_to(spec, controller, opts, db, **output):
+    import cosimstep
+
+    result = cosimstep.simulate(spec.system, 2.0, controller, opts, reference=spec.reference,
+                                store=db, **output)
+    assert result.success, result.message
+    return result, db
