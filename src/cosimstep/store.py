@@ -27,6 +27,7 @@ import os
 import socket
 import sqlite3
 import time
+from array import array
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -382,7 +383,7 @@ class GridStore:
         self._next = 0  # the next grid index to write
         self._count = 0  # points written
         self._last: tuple[float, np.ndarray] | None = None
-        self._seen: list[float] = []  # every point handed in (for the reference)
+        self._seen = array("d")  # every point's time handed in (for the reference), compact
         self.stored: list[float] = []  # the times written
         self._cells: dict[str | None, int] = {}  # last grid interval with an attempt kept
 

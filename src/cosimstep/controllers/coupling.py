@@ -60,6 +60,8 @@ class _PolicyController(Controller):
         self.h0 = h0
         self.error_estimate: float | None = None  # the run's global error estimate (scaled)
         self._spent: np.ndarray | None = None
+        # the error memory probe (controllers/memory.py): off unless a controller measures it
+        self.probe = ErrorMemory(every=0)
 
     def initial_step(self, t0: float, t_end: float) -> float:
         self.policy.start(t0, t_end)
@@ -68,9 +70,6 @@ class _PolicyController(Controller):
         self.error_estimate = 0.0
         h0 = self.h0 if self.h0 is not None else 1e-4 * (t_end - t0)
         return min(max(h0, self.policy.hmin), self.policy.hmax)
-
-    probe = ErrorMemory(every=0)  # off unless a controller measures the error memory
-    """The error memory probe (:mod:`~cosimstep.controllers.memory`); ``pc`` turns it on."""
 
     def _account(self, error: np.ndarray, values: np.ndarray, h: float) -> None:
         """Add an accepted step's local error estimate to the run's global error estimate.
