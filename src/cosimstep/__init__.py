@@ -9,7 +9,7 @@ from cosimstep.adapters.ode import RK4, OdeSubModel, ParameterSchedule, SolveIvp
 from cosimstep.config import SystemSpec, load_system
 from cosimstep.controllers import Controller, Fixed, Random, make_controller
 from cosimstep.errors import ConfigurationError, Problem, StepSizeError, SubModelError
-from cosimstep.masters import MasterOptions
+from cosimstep.masters import DEFAULT_CALL_TIMEOUT, MasterOptions
 from cosimstep.reference import Reference
 from cosimstep.simulate import SimulationResult, simulate
 from cosimstep.ssp import load_ssp
@@ -18,7 +18,8 @@ from cosimstep.submodel import Capabilities, Port, SubModel
 from cosimstep.system import System
 
 __all__ = [
-    "RK4", "Capabilities", "ConfigurationError", "Controller", "Fixed", "MasterOptions",
+    "DEFAULT_CALL_TIMEOUT", "RK4", "Capabilities", "ConfigurationError", "Controller", "Fixed",
+    "MasterOptions",
     "OdeSubModel", "ParameterSchedule", "Port", "Problem", "Random", "Reference",
     "SimulationResult", "SolveIvp", "StepSizeError", "SubModel", "SubModelError", "System",
     "SystemSpec", "load_ssp", "load_system", "make_controller", "read_run", "simulate",

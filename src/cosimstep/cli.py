@@ -95,7 +95,7 @@ def main() -> None:
               "point as well.")
 @click.option("--call-timeout", type=float, metavar="S", help="Seconds one sub-model call may "
               "take before the run ends failed with the results so far (0: no limit; default: "
-              "the file's [master] call_timeout, else none).")
+              "the file's [master] call_timeout, else 60).")
 @click.option("--inputs", "inputs_csv", type=click.Path(dir_okay=False), metavar="CSV",
               help="One FMU run alone (SYSTEM is an .fmu): its inputs from a CSV file, first "
               "column time, the others named after the inputs (linear between rows, held "
@@ -240,9 +240,9 @@ def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | N
                     interpolation: str | None, resync: str | None = None,
                     call_timeout: float | None = None) -> MasterOptions:
     """The file's ``[master]`` with the command line's choices on top (exit 2 if invalid);
-    ``call_timeout`` 0 lifts the file's limit."""
+    ``call_timeout`` 0 lifts the limit."""
     opts = spec.master
-    timeout = opts.call_timeout if call_timeout is None else (call_timeout or None)
+    timeout = opts.call_timeout if call_timeout is None else call_timeout
     opts = MasterOptions(master or opts.name,
                          opts.extrapolation if extrapolation is None else extrapolation,
                          opts.order, timeout, interpolation or opts.interpolation,

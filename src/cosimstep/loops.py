@@ -21,7 +21,7 @@ from cosimstep.controllers import Controller
 from cosimstep.controllers.base import Attempt
 from cosimstep.errors import SubModelError
 from cosimstep.kernel import Actor, Budget
-from cosimstep.masters import Master, _Watchdog
+from cosimstep.masters import Master
 from cosimstep.store import Store
 
 HISTORY_ROWS = 4  # stored points handed to controllers/masters for extrapolation
@@ -294,10 +294,8 @@ class FixedLoop(_Loop):
     PUBLISH_SECONDS = 0.1  # batch size: the steps that took about this long
 
     def __init__(self, runner: Master, step: float, t0: float, until: float,
-                 events: list[float], sink: Store | None, bar: Any,
-                 call_timeout: float | None = None) -> None:
+                 events: list[float], sink: Store | None, bar: Any) -> None:
         self.runner, self.h_step = runner, step
-        self.call_timeout = call_timeout
         self.t0, self.until, self.events = t0, until, events
         self.sink, self.bar = sink, bar
         self.t = t0
@@ -325,12 +323,8 @@ class FixedLoop(_Loop):
             setattr(self, name, new)
 
     def act(self, limit: float) -> None:
-        """Steps until ``limit``; with a call time-out, in a watched worker thread."""
-        if self.call_timeout:
-            self.runner._watch = _Watchdog(self.call_timeout)
-            self.runner._watch.run(lambda: self._run_to(limit), self.runner.system.names)
-        else:
-            self._run_to(limit)
+        """Steps until ``limit``."""
+        self._run_to(limit)
 
     def start(self) -> None:
         """Initialize the sub-models and record the first point."""
@@ -439,7 +433,6 @@ class FixedLoop(_Loop):
         if self.lean is not None:
             self.lean.sync()
             self.lean = None
-        self.runner._watch = None
         self._publish()
 
     def results(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -14,10 +14,8 @@ from __future__ import annotations
 
 import contextlib
 import math
-import queue
 import threading
 import time
-import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -37,6 +35,13 @@ MASTERS = ("jacobi", "gauss-seidel", "multirate")
 RESYNC = ("partial", "complete")
 
 
+DEFAULT_CALL_TIMEOUT = 60.0
+"""Seconds one sub-model call may take by default: far beyond any step of a model that works
+(the slowest call in the benchmarks takes about 0.1 s), short enough that a hung FMU does not
+hold a batch job until its wall-time limit. Watching costs two stores per call (measured in
+docs/benchmarks.md, fmu-overhead)."""
+
+
 @dataclass(frozen=True)
 class MasterOptions:
     """How steps are executed.
@@ -52,8 +57,9 @@ class MasterOptions:
     order:
         Gauss–Seidel execution order by model name (default: the order models were added).
     call_timeout:
-        Seconds one ``do_step`` may take before the run ends as failed (``None``: no limit). A
-        timed-out call is abandoned in its worker thread.
+        Seconds one sub-model call may take before the run ends as failed, results kept
+        (default :data:`DEFAULT_CALL_TIMEOUT`; ``0`` or ``None``: no limit). The run then goes
+        on in a worker thread that stamps every call, and a timed-out call is abandoned there.
     interpolation:
         Multi-rate only: how partners' stored trajectories are read (a method of
         :mod:`cosimstep.interpolation`; ``None``: the built-in local cubic, fastest).
@@ -67,7 +73,7 @@ class MasterOptions:
     name: str = "gauss-seidel"
     extrapolation: int = 2
     order: tuple[str, ...] | None = None
-    call_timeout: float | None = None
+    call_timeout: float | None = DEFAULT_CALL_TIMEOUT
     interpolation: str | None = None
     resync: str = "partial"
 
@@ -77,8 +83,8 @@ class MasterOptions:
             out.append(f"unknown master '{self.name}'; choose one of {', '.join(MASTERS)}")
         if self.extrapolation not in (0, 1, 2):
             out.append(f"extrapolation order {self.extrapolation} is not 0, 1 or 2")
-        if self.call_timeout is not None and not self.call_timeout > 0:
-            out.append("call_timeout must be positive")
+        if self.call_timeout is not None and not self.call_timeout >= 0:
+            out.append("call_timeout must be positive (0: no limit)")
         if self.interpolation is not None:
             from cosimstep.interpolation import INTERPOLATORS
 
@@ -92,67 +98,29 @@ class MasterOptions:
         return out
 
 
-class _TimedCaller:
-    """Runs calls in one daemon worker thread so a hanging sub-model cannot hang the master.
-
-    The worker starts with the first call (a lean fixed-step run is watched by a
-    :class:`_Watchdog` instead and never calls) and ends when this object is collected, so runs
-    do not leave idle threads behind; one still inside an abandoned call ends when it returns.
-    """
-
-    def __init__(self, timeout: float) -> None:
-        self.timeout = timeout
-        self._jobs: queue.Queue | None = None
-
-    def _start(self) -> queue.Queue:
-        jobs: queue.Queue = queue.Queue()
-        threading.Thread(target=_serve, args=(jobs,), daemon=True).start()
-        weakref.finalize(self, jobs.put, None)
-        self._jobs = jobs
-        return jobs
-
-    def __call__(self, fn: Any, *args: Any) -> Any:
-        box: list = []
-        done = threading.Event()
-        (self._jobs or self._start()).put((fn, args, box, done))
-        if not done.wait(self.timeout):
-            raise TimeoutError(f"no answer within {self.timeout:g} s (call abandoned)")
-        ok, value = box[0]
-        if not ok:
-            raise value
-        return value
-
-
-def _serve(jobs: queue.Queue) -> None:
-    """A :class:`_TimedCaller`'s worker: runs jobs until it gets ``None``. (Not a method: the
-    thread must not keep its caller alive.)"""
-    while (job := jobs.get()) is not None:
-        fn, args, box, done = job
-        try:
-            box.append((True, fn(*args)))
-        except BaseException as exc:
-            box.append((False, exc))
-        done.set()
-
-
 class _Abandoned(BaseException):
     """Ends a watched worker whose call came back after the run had given up on it."""
 
 
 class _Watchdog:
-    """Runs a whole job (a fixed-step run) in one daemon worker thread and watches its calls.
+    """Runs a whole job (a run's kernel) in one daemon worker thread and watches its calls.
 
-    :class:`_TimedCaller` hands every call to a worker and waits for it: two thread switches
-    per call, which cost more than a small FMU's step. Here the worker runs the loop itself and
-    stamps the start of each sub-model call (:meth:`call`); the calling thread sleeps until the
-    running call's deadline and ends the run when that call is still the one running. A
-    timed-out call is abandoned exactly as before: its thread is a daemon, and if the call ever
-    returns, the worker stops there (:class:`_Abandoned`) without touching anything else.
+    Handing every call to a worker thread and waiting for it costs two thread switches per
+    call, more than a small FMU's step. Here the worker runs the whole job and stamps the start
+    and end of each sub-model call (:meth:`call`, or the same two stores inlined in the lean
+    kernels' C paths); the calling thread sleeps until the running call's deadline and ends the
+    run when that call is still the one running. A timed-out call is abandoned: its thread is a
+    daemon, and if the call ever returns, the worker stops there (:class:`_Abandoned`) without
+    touching anything else.
 
-    The end of a call and the decision to abandon it take one lock: otherwise a call returning
-    between the watchdog's "still the same call?" and its "abandoned" lets the worker run on
-    (stepping sub-models, writing rows) while the caller reports the timeout and terminates
-    the sub-models under it.
+    No lock: a call's end is "``started = 0``, then read ``abandoned``", the watchdog's decision
+    "``abandoned = True``, then read ``started``" (both single stores and loads under the GIL,
+    so seen in one order by both threads). If the watchdog still sees the call running after
+    raising the flag, the worker will read the flag when (if) the call returns and stop; if the
+    call ended in between, the flag is lowered again and the worker goes on — unless it read the
+    flag in that instant, in which case it stopped and the run ends timed out all the same
+    (the call did take the whole limit). Either way the worker never steps a sub-model after
+    the caller has reported the time-out.
     """
 
     def __init__(self, timeout: float) -> None:
@@ -160,7 +128,6 @@ class _Watchdog:
         self.started = 0.0  # perf_counter() when the running call began; 0.0: none running
         self.where: tuple[int, float, float | None] = (-1, math.nan, None)  # (k, t, h)
         self.abandoned = False
-        self._lock = threading.Lock()
 
     def call(self, k: int, t: float, h: float | None, fn: Any, args: tuple) -> Any:
         self.where = (k, t, h)
@@ -168,23 +135,28 @@ class _Watchdog:
         try:
             return fn(*args)
         finally:
-            with self._lock:
-                self.started = 0.0
-                abandoned = self.abandoned
-            if abandoned:
+            self.started = 0.0
+            if self.abandoned:
                 raise _Abandoned
 
-    def _give_up(self, started: float) -> tuple[int, float, float | None] | None:
-        """Abandon the call stamped ``started`` if it is still running; its ``(k, t, h)``."""
-        with self._lock:
-            if self.started != started:
-                return None  # it ended (and the worker went on) before we decided
-            self.abandoned = True
-            return self.where
+    def _give_up(self, started: float) -> bool:
+        """Abandon the call stamped ``started`` if it is still running (see the class)."""
+        self.abandoned = True
+        if self.started == started:
+            return True
+        self.abandoned = False
+        return False
+
+    def _timeout(self, names: Sequence[str]) -> SubModelError:
+        k, t, h = self.where
+        msg = f"no answer within {self.timeout:g} s (call abandoned)"
+        error = SubModelError(names[k], t, f"TimeoutError: {msg}", h)
+        error.__cause__ = TimeoutError(msg)
+        return error
 
     def run(self, job: Any, names: Sequence[str]) -> Any:
         """``job()`` in the worker; its result or exception, or a :class:`SubModelError` for
-        the call that exceeded the timeout."""
+        the call that exceeded the time-out (found within 1.25 time-outs of its start)."""
         box: list = []
         done = threading.Event()
 
@@ -199,25 +171,23 @@ class _Watchdog:
                 done.set()
 
         threading.Thread(target=work, daemon=True, name="cosimstep-run").start()
-        wait = self.timeout
+        timeout, wait = self.timeout, self.timeout
         try:
             while not done.wait(wait):
                 started = self.started
-                if started and time.perf_counter() - started >= self.timeout:
-                    where = self._give_up(started)
-                    if where is not None:
-                        k, t, h = where
-                        msg = f"no answer within {self.timeout:g} s (call abandoned)"
-                        raise SubModelError(names[k], t, f"TimeoutError: {msg}", h) \
-                            from TimeoutError(msg)
-                wait = started + self.timeout - time.perf_counter() if started else self.timeout
-                wait = max(wait, 1e-3)
+                if started and time.perf_counter() - started >= timeout \
+                        and self._give_up(started):
+                    raise self._timeout(names)
+                # the running call's deadline; between calls, a quarter of the limit
+                wait = max(started + timeout - time.perf_counter() if started
+                           else 0.25 * timeout, 1e-3)
         except KeyboardInterrupt:
             # stop at the next call's return; wait for it as long as a call may take
-            with self._lock:
-                self.abandoned = True
-            done.wait(self.timeout)
+            self.abandoned = True
+            done.wait(timeout)
             raise
+        if not box:  # it stopped on the flag raised in the instant its call ended
+            raise self._timeout(names)
         ok, value = box[0]
         if not ok:
             raise value
@@ -249,7 +219,6 @@ class Master:
         # a connection without gain, offset or unit change passes values on untouched
         self._identity = [bool(np.all(a == 1.0) and np.all(b == 0.0))
                           for a, b in zip(system.a, system.b)]
-        self._call = _TimedCaller(options.call_timeout) if options.call_timeout else None
         self._watch: _Watchdog | None = None  # set while a watched run is under way
         self._dy0: np.ndarray | None = None
         self.predicted = self._predicted_columns()
@@ -316,10 +285,12 @@ class Master:
                                 f"expected {n} float(s), one per declared output", h)
         return arr
 
-    def terminate(self) -> None:
-        for model in self.system.models:
-            with contextlib.suppress(Exception):
-                model.terminate()
+    def terminate(self, spare: set[str] | frozenset[str] = frozenset()) -> None:
+        """Terminate every sub-model but those named in ``spare`` (their calls hung)."""
+        for name, model in zip(self.system.names, self.system.models):
+            if name not in spare:
+                with contextlib.suppress(Exception):
+                    model.terminate()
 
     def save(self) -> list[Any]:
         return [m.save_state() for m in self.system.models]
@@ -477,8 +448,6 @@ class Master:
         try:
             if self._watch is not None:
                 return self._watch.call(k, t, h, fn, args)
-            if self._call is not None:
-                return self._call(fn, *args)
             return fn(*args)
         except SubModelError:
             raise
@@ -518,7 +487,6 @@ class _HeldKernel:
         gauss_seidel = master.options.name == "gauss-seidel"
         self.calls = [0] * len(system.models)  # added to the master's counts by :meth:`sync`
         self.time = [0.0] * len(system.models)
-        watched = master._watch is not None or master._call is not None
         self.plan = []
         for k in master.sequence:
             model = system.models[k]
@@ -527,7 +495,7 @@ class _HeldKernel:
             fresh = np.array([gauss_seidel and rank[owner[j]] < rank[k] for j in src], dtype=int)
             gather = src + m * fresh  # flat index into the table, relative to row n
             out = system.output_slices[k]
-            raw = None if watched else getattr(model, "_direct_io", lambda: None)()
+            raw = getattr(model, "_direct_io", lambda: None)()
             in_offset = None  # the inputs' byte offset from row n, when no gather is needed
             buffer = None
             if raw is not None:
@@ -558,6 +526,7 @@ class _HeldKernel:
         m = self.m
         row = n * m
         calls, spent, clock = self.calls, self.time, time.perf_counter
+        watch = self.master._watch
         for k, model, raw, in_offset, gather, identity, a, b, out in self.plan:
             if raw is not None:
                 (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
@@ -570,6 +539,8 @@ class _HeldKernel:
                     address = buffer_address
                 calls[k] += 1
                 start = clock()
+                if watch is not None:  # Master._guard's stamps, inlined
+                    watch.where, watch.started = (k, t, h), start
                 status = set_real(component, in_vr, n_in, address)
                 if status > 1:
                     self._fail(k, t, h, fail("fmi2SetReal", status))
@@ -580,6 +551,10 @@ class _HeldKernel:
                 status = get_real(component, out_vr, n_out, base + 8 * (row + m) + out_offset)
                 if status > 1:
                     self._fail(k, t, h, fail("fmi2GetReal", status))
+                if watch is not None:
+                    watch.started = 0.0
+                    if watch.abandoned:
+                        raise _Abandoned
             else:
                 master = self.master
                 x = flat[gather + row]
@@ -595,6 +570,8 @@ class _HeldKernel:
             self.master._check_finite(range(len(self.plan)), t, new, h)
 
     def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
+        if self.master._watch is not None:
+            self.master._watch.started = 0.0
         raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc
 
 
@@ -647,7 +624,6 @@ class _ExtrapolatingKernel:
                 np.array(step_derivative_weights(p, True)))
         self.calls = [0] * len(system.models)  # added to the master's counts by :meth:`sync`
         self.time = [0.0] * len(system.models)
-        watched = master._watch is not None or master._call is not None
         self._flat: np.ndarray | None = None  # the table as given, and as rows
         self._rows = np.empty((0, m))
         self._h: float | None = None  # the step the derivative weights are scaled for
@@ -683,10 +659,9 @@ class _ExtrapolatingKernel:
                 self._scaled.append((wd_unit, wd))
                 deriv = (q, wd, src, np.zeros((q, src.size)))
             raw = None
-            if not watched:
-                direct = getattr(model, "_direct_io", None)
-                if direct is not None:
-                    raw = direct(derivatives=True) if q else direct()
+            direct = getattr(model, "_direct_io", None)
+            if direct is not None:
+                raw = direct(derivatives=True) if q else direct()
             buffer = np.zeros(src.size)
             if raw is not None:
                 out = system.output_slices[k]
@@ -780,6 +755,9 @@ class _ExtrapolatingKernel:
             d_model[q:] = 0.0
         calls[k] += 1
         start = clock()
+        watch = self.master._watch
+        if watch is not None:  # Master._guard's stamps, inlined
+            watch.where, watch.started = (k, t, h), start
         status = set_real(component, in_vr, n_in, buffer_address)
         if status > 1:
             self._fail(k, t, h, fail("fmi2SetReal", status))
@@ -797,6 +775,10 @@ class _ExtrapolatingKernel:
         status = get_real(component, out_vr, n_out, base + 8 * (row + m) + out_offset)
         if status > 1:
             self._fail(k, t, h, fail("fmi2GetReal", status))
+        if watch is not None:
+            watch.started = 0.0
+            if watch.abandoned:
+                raise _Abandoned
 
     def _python_step(self, k: int, t: float, h: float, n: int, flat: np.ndarray, model: Any,
                      block: Any, gather: Any, w: Any, deriv: Any, identity: bool, a: Any,
@@ -824,4 +806,6 @@ class _ExtrapolatingKernel:
         flat[row + m + out.start:row + m + out.stop] = master._outputs(k, t, h)
 
     def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
+        if self.master._watch is not None:
+            self.master._watch.started = 0.0
         raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc

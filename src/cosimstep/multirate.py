@@ -132,13 +132,11 @@ class Multirate:
     interpolation:
         ``None`` for the built-in local cubic (fast), or a method of
         :mod:`cosimstep.interpolation` by name for the partners' trajectories.
-    call_timeout:
-        Seconds one sub-model call may take before the run ends as failed.
     """
 
     def __init__(self, system: CompiledSystem, policy: StepPolicy, h0: float,
                  order: int = 2, interpolation: str | None = None,
-                 call_timeout: float | None = None, resync: str = "partial") -> None:
+                 resync: str = "partial") -> None:
         problems = refusals(dict(zip(system.names, system.models)), interpolation)
         if problems:
             raise ValueError("the multirate master re-runs steps and interpolates trajectories; "
@@ -146,7 +144,8 @@ class Multirate:
         self.system = system
         self.order = order
         self.h0 = h0
-        self._caller = Master(system, MasterOptions("multirate", order, call_timeout=call_timeout))
+        # the calls are made (and named, counted, watched) as the synchronous master makes them
+        self._caller = Master(system, MasterOptions("multirate", order, call_timeout=None))
         self.method = None
         if interpolation is not None:
             from cosimstep.interpolation import make_interpolator

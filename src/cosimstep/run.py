@@ -32,7 +32,7 @@ from cosimstep.errors import StepSizeError, SubModelError
 from cosimstep.events import MAX_EVENTS, DiscreteEventModel, Event
 from cosimstep.kernel import Actor, Budget, BudgetExceeded, Kernel
 from cosimstep.loops import ControllerLoop, FixedLoop
-from cosimstep.masters import Master, MasterOptions
+from cosimstep.masters import Master, MasterOptions, _Watchdog
 from cosimstep.reference import ErrorReport, Reference, error_report
 from cosimstep.result import ModelStats, SimulationResult
 from cosimstep.store import GridStore, Store
@@ -58,8 +58,17 @@ class Outcome:
 class Scheme(ABC):
     """A coupling scheme: its actors, how it ends, and what it produced."""
 
-    def __init__(self, compiled: Any, t0: float, until: float) -> None:
+    def __init__(self, compiled: Any, t0: float, until: float,
+                 call_timeout: float | None = None) -> None:
         self.compiled, self.t0, self.until = compiled, t0, until
+        self.call_timeout = call_timeout or None  # 0: no limit
+        # sub-models whose call was abandoned: their thread may still be inside them, so they
+        # are not terminated (freeing an FMU instance under a running call would crash it)
+        self.hung: set[str] = set()
+
+    @abstractmethod
+    def masters(self) -> list[Master]:
+        """The masters that make the sub-model calls (a run's watchdog stamps them)."""
 
     @property
     @abstractmethod
@@ -98,7 +107,7 @@ class Synchronous(Scheme):
 
     def __init__(self, compiled: Any, t0: float, until: float, controller: Controller,
                  master: MasterOptions, events: list[float]) -> None:
-        super().__init__(compiled, t0, until)
+        super().__init__(compiled, t0, until, master.call_timeout)
         self.controller, self.master, self.events = controller, master, events
         self.runner = Master(compiled, master)
         self.loop: FixedLoop | ControllerLoop | None = None
@@ -119,13 +128,16 @@ class Synchronous(Scheme):
     def t(self) -> float:
         return self.loop.t if self.loop is not None else self.t0
 
+    def masters(self) -> list[Master]:
+        return [self.runner]
+
     def actors(self, kernel: Kernel, sink: Store | None, bar: Any) -> list[Actor]:
         # The fixed step needs no controller, context or attempt per step: a lean loop gives
         # the same run (a subclass of Fixed may change attempt(), so only Fixed qualifies).
         watched = bool(self.state_events or self.changing)
         if type(self.controller) is Fixed and not watched:
             self.loop = FixedLoop(self.runner, self.controller.step, self.t0, self.until,
-                                  self.events, sink, bar, self.master.call_timeout)
+                                  self.events, sink, bar)
         else:
             self.loop = ControllerLoop(self.runner, self.controller, self.t0, self.until,
                                        self.events, sink, bar)
@@ -227,7 +239,7 @@ class Synchronous(Scheme):
             if self.loop is not None:
                 self.loop.finish()  # hands the last rows to the store (may fail: disk full)
         finally:
-            self.runner.terminate()  # frees FMU instances and unpacked folders in any case
+            self.runner.terminate(self.hung)  # frees FMU instances and unpacked folders
 
     def outcome(self) -> Outcome:
         assert self.loop is not None
@@ -265,7 +277,7 @@ class MultiRate(Scheme):
                  master: MasterOptions, events: list[float]) -> None:
         from cosimstep.multirate import Multirate
 
-        super().__init__(compiled, t0, until)
+        super().__init__(compiled, t0, until, master.call_timeout)
         policy = getattr(controller, "policy", None)
         if policy is None:
             raise ValueError(f"the multirate master needs an error-controlled controller (e.g. "
@@ -274,10 +286,13 @@ class MultiRate(Scheme):
         h0 = getattr(controller, "h0", None) or 1e-4 * (until - t0)
         self.race = Multirate(compiled, policy, min(max(h0, policy.hmin), policy.hmax),
                               order=master.extrapolation, interpolation=master.interpolation,
-                              call_timeout=master.call_timeout, resync=master.resync)
+                              resync=master.resync)
         self.events = events
         self._behind = t0
         self.fired: list[Event] = []
+
+    def masters(self) -> list[Master]:
+        return [self.race._caller]
 
     @property
     def t(self) -> float:
@@ -312,9 +327,7 @@ class MultiRate(Scheme):
         self.race.budget = budget
 
     def close(self) -> None:
-        for m in self.compiled.models:
-            with contextlib.suppress(Exception):
-                m.terminate()
+        self.race._caller.terminate(self.hung)
 
     def outcome(self) -> Outcome:
         race, tracks, compiled = self.race, self.race.tracks, self.compiled
@@ -468,15 +481,31 @@ class Run:
                bar: Any) -> tuple[str, str, BaseException | None]:
         """The kernel over the scheme's actors; ``(status, message, failure)``."""
         scheme = self.scheme
-        try:
+
+        def job() -> None:
             kernel = Kernel(scheme.until)
             for actor in scheme.actors(kernel, sink, bar):
                 kernel.add(actor)
             scheme.limit(self.budget)
             kernel.run(scheme.settle)
+
+        try:
+            if scheme.call_timeout is None:
+                job()
+            else:  # in a worker thread that this one watches (a hung call cannot hang the run)
+                watch = _Watchdog(scheme.call_timeout)
+                for master in scheme.masters():
+                    master._watch = watch
+                try:
+                    watch.run(job, scheme.compiled.names)
+                finally:
+                    for master in scheme.masters():
+                        master._watch = None
         except BudgetExceeded as exc:
             return "timed_out", f"at t = {scheme.t:.9g}: {exc}", None
         except SubModelError as exc:
+            if exc.hung:
+                scheme.hung.add(exc.model)
             return "failed", str(exc), exc
         except StepSizeError as exc:
             return "failed", f"at t = {scheme.t:.9g}: {exc}", exc

@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cosimstep.adapters.ode import ParameterSchedule
 from cosimstep.errors import ConfigurationError, Problem
-from cosimstep.masters import MasterOptions
+from cosimstep.masters import DEFAULT_CALL_TIMEOUT, MasterOptions
 from cosimstep.models import REGISTRY
 from cosimstep.reference import Reference
 from cosimstep.system import System
@@ -38,7 +38,7 @@ class MasterSection(Section):
     name: str = "gauss-seidel"
     extrapolation: int = 2
     order: list[str] | None = None
-    call_timeout: float | None = None
+    call_timeout: float = DEFAULT_CALL_TIMEOUT
     interpolation: str | None = None
     resync: str = "partial"
 

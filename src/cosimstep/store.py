@@ -85,7 +85,9 @@ class Store:
     def __init__(self, path: str | Path, flush_seconds: float = 0.5) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._db = sqlite3.connect(self.path)
+        # written by the run's worker thread when calls are watched (masters._Watchdog), then
+        # by the caller once the worker has stopped: one thread at a time
+        self._db = sqlite3.connect(self.path, check_same_thread=False)
         self._db.executescript(SCHEMA)
         _add_owner_columns(self._db)
         self._flush_seconds = flush_seconds

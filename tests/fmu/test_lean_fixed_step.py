@@ -8,6 +8,7 @@ the FMUs as built (they interpolate their inputs: input derivatives, sent by the
 from __future__ import annotations
 
 import functools
+import time
 from pathlib import Path
 from typing import Any
 
@@ -155,3 +156,39 @@ def test_kernel_keeps_the_fmus_input_derivative_bookkeeping(bar_fmus: dict[int, 
             runner.terminate()
     assert np.max(np.abs(states[True][0] - states[False][0])) <= AGREE
     assert np.max(np.abs(states[True][1] - states[False][1])) <= AGREE
+
+
+class HangingFmu(FmuSubModel):
+    """Its raw ``fmi2DoStep`` (the lean kernels' C path) hangs from t = 0.05 on."""
+
+    raw_steps = 0
+
+    def _direct_io(self, derivatives: bool = False) -> Any:
+        io = super()._direct_io(derivatives)
+        if io is None:
+            return None
+        do_step = io[4]
+
+        def hanging(component: Any, t: float, h: float, flag: int) -> int:
+            type(self).raw_steps += 1
+            if t >= 0.05 - 1e-12:
+                time.sleep(30)
+            return do_step(component, t, h, flag)
+
+        return (*io[:4], hanging, *io[5:])
+
+
+@pytest.mark.parametrize("order", [0, 2])
+def test_a_hang_in_the_raw_c_path_times_out(bar_fmus: dict[int, Path], order: int) -> None:
+    """The watchdog's stamps are inlined in the kernels' C paths (held inputs: order 0;
+    extrapolated with input derivatives: order 2), so a call there that never returns ends
+    the run as one through ``Master._guard`` does, with the steps before it."""
+    HangingFmu.raw_steps = 0
+    started = time.perf_counter()
+    result = cosimstep.simulate(helpers.fmu_pendulum(bar_fmus, HangingFmu), 1.0,
+                                cosimstep.Fixed(0.01),
+                                cosimstep.MasterOptions("jacobi", order, call_timeout=0.3))
+    assert time.perf_counter() - started < 10.0  # the call sleeps 30 s
+    assert result.status == "failed" and "no answer within 0.3 s" in result.message
+    assert "t = 0.05" in result.message and result.steps_accepted == 5
+    assert HangingFmu.raw_steps > 0  # the C path ran (the general step for the first `order`)

@@ -49,6 +49,36 @@ def test_hanging_submodel_times_out():
     assert r.steps_accepted == 5
 
 
+@pytest.mark.parametrize("options, watched", [(MasterOptions(), True),
+                                              (MasterOptions(call_timeout=0), False),
+                                              (MasterOptions("multirate"), True)])
+def test_every_run_is_watched_unless_the_limit_is_lifted(examples, options, watched):
+    """The default call_timeout (60 s) moves the run into a watched worker thread, the
+    lean fixed step, the adaptive loop and multirate alike; 0 keeps it in the calling one."""
+    import threading
+
+    from cosimstep import DEFAULT_CALL_TIMEOUT, load_system
+    from cosimstep.controllers import make_controller
+
+    assert MasterOptions().call_timeout == DEFAULT_CALL_TIMEOUT == 60.0
+    for controller in (Fixed(0.01), make_controller("pc", None, 1e-3)):
+        if options.name == "multirate" and isinstance(controller, Fixed):
+            continue
+        spec = load_system(examples / "double_pendulum_slow.toml")
+        assert spec.master.call_timeout == DEFAULT_CALL_TIMEOUT  # no [master] call_timeout
+        bar = spec.system.models["bar2"]
+        plain, seen = bar.do_step, set()
+
+        def do_step(t, h, plain=plain, seen=seen):
+            seen.add(threading.current_thread() is threading.main_thread())
+            plain(t, h)
+
+        bar.do_step = do_step
+        r = simulate(spec.system, 0.5, controller, options)
+        assert r.success, r.message
+        assert seen == {not watched}
+
+
 def _fragile(examples, h_fail: float, mode: str, after: float = 0.0):
     """The mixed pendulum whose lower bar fails on any step longer than ``h_fail`` that starts
     after ``after`` (raises, or returns NaN), as an internal solver may on an over-long step."""
