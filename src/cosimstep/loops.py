@@ -17,12 +17,13 @@ from typing import Any
 
 import numpy as np
 
+from cosimstep.checkpoint import Checkpoints, restore
 from cosimstep.controllers import Controller
 from cosimstep.controllers.base import Attempt
 from cosimstep.errors import SubModelError
 from cosimstep.kernel import Actor, Budget
 from cosimstep.masters import Master
-from cosimstep.store import Store
+from cosimstep.store import Checkpoint, Store
 
 HISTORY_ROWS = 4  # stored points handed to controllers/masters for extrapolation
 FAILED_TRIAL_SHRINK = 0.25  # step factor after a trial step a sub-model failed on
@@ -138,7 +139,10 @@ class ControllerLoop(_Loop):
             self._attempt(min(event, limit), event)
 
     def start(self) -> None:
-        """Initialize the sub-models and record the first point."""
+        """Initialize the sub-models and record the first point (or resume)."""
+        if self.resume_from is not None:
+            restore(self, self.resume_from, self.t0)
+            return
         t = self.t0
         self._clock = _Clock(t)
         y0 = self.runner.initialize(t)
@@ -313,6 +317,9 @@ class FixedLoop(_Loop):
         self._stored = 0  # points handed to the store so far
         self._shown = 0  # steps shown on the progress bar so far
         self._published = (0, time.perf_counter())  # (n, time) of the last publication
+        self.offset = 0  # the store's index of row 0 (a resumed run starts at a checkpoint)
+        self.checkpoints: Checkpoints | None = None  # when to write checkpoints, if at all
+        self.resume_from: Checkpoint | None = None  # start from this instead of t0
 
     def _grow(self) -> None:
         rows = 2 * self.times.shape[0]
@@ -327,7 +334,10 @@ class FixedLoop(_Loop):
         self._run_to(limit)
 
     def start(self) -> None:
-        """Initialize the sub-models and record the first point."""
+        """Initialize the sub-models and record the first point (or resume)."""
+        if self.resume_from is not None:
+            restore(self, self.resume_from, self.t0)
+            return
         t = self.t0
         y0 = self.runner.initialize(t)
         self.times[0], self.table[0], self.n = t, y0, 0
@@ -383,6 +393,7 @@ class FixedLoop(_Loop):
                 segment = n
                 runner.restart()
             if n == due:
+                self._state = (clock, carry, segment, due)
                 due = n + self._publish()
                 if self.budget:
                     self._state = (clock, carry, segment, due)
@@ -412,13 +423,15 @@ class FixedLoop(_Loop):
         n = self.n
         if self.sink is not None and n >= self._stored:
             first = self._stored
-            self.sink.add_points(first, self.times[first:n + 1].tolist(),
+            self.sink.add_points(self.offset + first, self.times[first:n + 1].tolist(),
                                  self.table[first:n + 1].tolist())
             if first == 0:
                 first = 1
             self.sink.add_accepted_attempts(self.times[first - 1:n].tolist(),
                                             self.hs[first - 1:n].tolist())
             self._stored = n + 1
+            if self.checkpoints is not None and self.checkpoints.due(n):
+                self.checkpoints.take(self)
         if self.bar is not None and n > self._shown:
             self.bar.update(float(np.sum(self.hs[self._shown:n])))
             self._shown = n

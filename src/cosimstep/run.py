@@ -66,6 +66,20 @@ class Scheme(ABC):
         # are not terminated (freeing an FMU instance under a running call would crash it)
         self.hung: set[str] = set()
 
+    def resumable(self) -> str | None:
+        """Why a run of this scheme cannot take checkpoints and be resumed (``None``: it can)."""
+        return f"{type(self).__name__.lower()} runs cannot be resumed yet"
+
+    def resume(self, checkpoints: Any, resume_from: Any) -> None:  # noqa: B027
+        """Write checkpoints as set in ``checkpoints`` (a :class:`~cosimstep.checkpoint.
+        Checkpoints`, or ``None``); start from ``resume_from`` (a stored checkpoint, or
+        ``None``). Only called when :meth:`resumable` is ``None``."""
+
+    @property
+    def offset(self) -> int:
+        """The store's index of the result's first point (0 unless resumed)."""
+        return 0
+
     @abstractmethod
     def masters(self) -> list[Master]:
         """The masters that make the sub-model calls (a run's watchdog stamps them)."""
@@ -131,6 +145,22 @@ class Synchronous(Scheme):
     def masters(self) -> list[Master]:
         return [self.runner]
 
+    def resumable(self) -> str | None:
+        if type(self.controller) is not Fixed:
+            return (f"only fixed-step runs take checkpoints (this one: controller "
+                    f"'{self.controller.name}', whose own state a checkpoint would need too)")
+        if self.state_events or self.changing or any(
+                isinstance(m, DiscreteEventModel) for m in self.compiled.models):
+            return "runs with discrete events or discrete outputs cannot be resumed yet"
+        return None
+
+    def resume(self, checkpoints: Any, resume_from: Any) -> None:
+        self._checkpoints, self._resume_from = checkpoints, resume_from
+
+    @property
+    def offset(self) -> int:
+        return self.loop.offset if isinstance(self.loop, FixedLoop) else 0
+
     def actors(self, kernel: Kernel, sink: Store | None, bar: Any) -> list[Actor]:
         # The fixed step needs no controller, context or attempt per step: a lean loop gives
         # the same run (a subclass of Fixed may change attempt(), so only Fixed qualifies).
@@ -138,6 +168,8 @@ class Synchronous(Scheme):
         if type(self.controller) is Fixed and not watched:
             self.loop = FixedLoop(self.runner, self.controller.step, self.t0, self.until,
                                   self.events, sink, bar)
+            self.loop.checkpoints = getattr(self, "_checkpoints", None)
+            self.loop.resume_from = getattr(self, "_resume_from", None)
         else:
             self.loop = ControllerLoop(self.runner, self.controller, self.t0, self.until,
                                        self.events, sink, bar)
@@ -434,11 +466,14 @@ class Run:
     def __init__(self, scheme: Scheme, *, store: str | Path | None, name: str,
                  settings: dict[str, Any], progress: bool | None,
                  budget: Budget | None = None,
-                 output: tuple[float, bool] | None = None) -> None:
+                 output: tuple[float, bool] | None = None,
+                 checkpoints: Any = None, resume: int | None = None) -> None:
         self.scheme, self.store, self.name = scheme, store, name
         self.settings, self.progress = settings, progress
         self.budget = budget
         self.output = output  # (interval, keep every step): values stored on a grid
+        self.checkpoints = checkpoints  # a checkpoint.Checkpoints, or None
+        self.resume = resume  # the id of the stored run to continue from its checkpoint
 
     def execute(self, reference: Reference | None,
                 amend: Callable[[SimulationResult], None] | None = None, *,
@@ -450,8 +485,18 @@ class Run:
         sink: Any = Store(self.store) if self.store is not None else None
         if sink is not None and self.output is not None:
             sink = GridStore(sink, self.output[0], scheme.t0, self.output[1])
-        if sink is not None:
+        if sink is not None and self.resume is not None:
+            try:
+                checkpoint = sink.reopen(self.resume, self.settings, compiled.output_names)
+            except Exception:
+                sink.close()
+                raise
+            scheme.resume(self.checkpoints, checkpoint)
+        elif sink is not None:
             sink.begin(self.name, self.settings, compiled.output_names, compiled.output_units)
+            if self.checkpoints is not None and self.output is None \
+                    and scheme.resumable() is None:
+                scheme.resume(self.checkpoints, None)
         wall0 = time.perf_counter()
         bar = _progress(self.progress, scheme.t0, scheme.until)
         try:
@@ -530,7 +575,8 @@ class Run:
             scheme.store(sink, out)
             sink.add_events(out.events)
             if ref_values is not None:
-                sink.add_reference(ref_values, [compiled.output_names.index(n) for n in names])
+                sink.add_reference(ref_values, [compiled.output_names.index(n) for n in names],
+                                   scheme.offset)
         return SimulationResult(
             status=status, message=message, t_end=out.t_end, names=compiled.output_names,
             units=compiled.output_units, times=out.times, values=out.values, calls=out.calls,

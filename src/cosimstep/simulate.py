@@ -39,6 +39,9 @@ def simulate(
     max_calls: int | None = None,
     output_interval: float | None = None,
     output_steps: bool = False,
+    checkpoint_every: float | None = None,
+    checkpoint_steps: int | None = None,
+    resume: int | None = None,
 ) -> SimulationResult:
     """Co-simulate ``system`` from ``t0`` to ``until``.
 
@@ -74,6 +77,13 @@ def simulate(
         Store the values every ``output_interval`` seconds (linear between the run's points)
         instead of at every point, and with ``output_steps`` at every accepted point as well
         (:class:`~cosimstep.store.GridStore`). The result in memory keeps every point.
+    checkpoint_every, checkpoint_steps:
+        Write a checkpoint to the store every so many seconds of wall time and/or steps
+        (fixed-step runs storing every point; :mod:`cosimstep.checkpoint`).
+    resume:
+        The id of a run in ``store`` to continue from its newest checkpoint, with the same
+        system and settings; it keeps its id, and ends as one run that had never stopped. The
+        result holds the points from just before the checkpoint on (the store has them all).
     """
     budget = Budget(max_wall, max_calls)
     if estimate not in ("sum", "rerun"):
@@ -90,8 +100,17 @@ def simulate(
                                             and output_interval > 0):
         raise ValueError(f"`output_interval` must be positive, got {output_interval}")
     output = (output_interval, output_steps) if output_interval is not None else None
+    checkpoints = None
+    if checkpoint_every is not None or checkpoint_steps is not None:
+        from cosimstep.checkpoint import Checkpoints
+
+        checkpoints = Checkpoints(checkpoint_every, checkpoint_steps)
+    if resume is not None and (store is None or output is not None or looser is not None):
+        raise ValueError("`resume` continues a run in `store` that stored every point: give "
+                         "`store`, and no `output_interval` or re-run estimate")
     return _simulate(system, until, controller, master, t0, reference, store, name, config,
-                     progress, raise_on_failure, looser, budget, output)
+                     progress, raise_on_failure, looser, budget, output,
+                     checkpoints=checkpoints, resume=resume)
 
 
 def _loosened(controller: Controller) -> Controller:
@@ -113,7 +132,8 @@ def _simulate(system: System, until: float, controller: Controller,
               store: str | Path | None, name: str, config: dict[str, Any] | None,
               progress: bool | None, raise_on_failure: bool,
               looser: SimulationResult | None, budget: Budget | None = None,
-              output: tuple[float, bool] | None = None) -> SimulationResult:
+              output: tuple[float, bool] | None = None, *, checkpoints: Any = None,
+              resume: int | None = None) -> SimulationResult:
     """:func:`simulate` once; ``looser`` is the run at 10× the tolerance for ``"rerun"``."""
     if not (math.isfinite(until) and until > t0):
         raise ValueError(f"`until` ({until}) must be finite and after t0 ({t0})")
@@ -132,8 +152,10 @@ def _simulate(system: System, until: float, controller: Controller,
                 "controller": controller.describe(), **(config or {})}
     if output is not None:
         settings["output_interval"], settings["output_steps"] = output
+    if resume is not None and scheme.resumable() is not None:
+        raise ValueError(f"cannot resume run {resume}: {scheme.resumable()}")
     run = Run(scheme, store=store, name=name, settings=settings, progress=progress,
-              budget=budget, output=output)
+              budget=budget, output=output, checkpoints=checkpoints, resume=resume)
     return run.execute(reference, lambda r: _rerun_estimate(r, looser, controller, events),
                        raise_on_failure=raise_on_failure)
 

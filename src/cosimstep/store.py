@@ -14,6 +14,10 @@ Tables (one file can hold many runs)::
                                                           sub-model's communication points
     event(run_id, seq, t, source, kind, payload_json, late)  -- discrete events (late: a state
                                                           event fired a step late, not located)
+    checkpoint(run_id, t, point, attempt_seq, created, state, note)  -- the newest checkpoint
+                                                          a run can be resumed from (state:
+                                                          pickled; NULL with a note when the
+                                                          run could not take one)
 
 Rows are buffered and committed at least every ``flush_seconds`` of wall time, so a run that is
 interrupted or crashes keeps what it computed up to the last commit.
@@ -62,6 +66,9 @@ CREATE TABLE IF NOT EXISTS event(
 CREATE TABLE IF NOT EXISTS calls(
     run_id INTEGER, model TEXT, calls INTEGER, time_in_model_s REAL,
     PRIMARY KEY(run_id, model));
+CREATE TABLE IF NOT EXISTS checkpoint(
+    run_id INTEGER PRIMARY KEY, t REAL, point INTEGER, attempt_seq INTEGER, created REAL,
+    state BLOB, note TEXT);
 """
 
 
@@ -113,6 +120,47 @@ class Store:
         self._db.commit()
         return self.run_id
 
+    def reopen(self, run_id: int, config: dict[str, Any], names: Sequence[str]) -> Checkpoint:
+        """Continue run ``run_id`` from its newest checkpoint: what it stored after it is
+        removed, the run is ``running`` again under this process, and the checkpoint is
+        returned. Raises ``ValueError`` (saying why) if it cannot be resumed, or if
+        ``config`` (the settings of the run to be continued) differs from the stored one."""
+        ck = read_checkpoint(self.path, run_id, self._db)
+        row = self._db.execute("SELECT config_json FROM run WHERE id=?", (run_id,)).fetchone()
+        stored = json.loads(row[0])
+        given = json.loads(json.dumps(config, default=str))
+        differ = sorted(k for k in {*stored, *given} if stored.get(k) != given.get(k))
+        if differ:
+            raise ValueError(f"run {run_id} in {self.path} was run with other settings "
+                             f"({', '.join(differ)}): resume it with the same system file "
+                             "and options")
+        have = [r[0] for r in self._db.execute(
+            "SELECT name FROM variable WHERE run_id=? ORDER BY id", (run_id,))]
+        if have != list(names):
+            raise ValueError(f"run {run_id} in {self.path} exchanged other variables: resume "
+                             "it with the same system")
+        db, rid = self._db, run_id
+        db.execute("DELETE FROM point WHERE run_id=? AND step>?", (rid, ck.point))
+        db.execute("DELETE FROM sample WHERE run_id=? AND step>?", (rid, ck.point))
+        db.execute("DELETE FROM attempt WHERE run_id=? AND seq>=?", (rid, ck.attempt_seq))
+        for table in ("calls", "event", "reference"):
+            db.execute(f"DELETE FROM {table} WHERE run_id=?", (rid,))
+        db.execute("UPDATE run SET status='running', message=NULL, host=?, pid=?, heartbeat=? "
+                   "WHERE id=?", (socket.gethostname(), os.getpid(), time.time(), rid))
+        db.commit()
+        self.run_id, self._n_vars, self._seq = rid, len(names), ck.attempt_seq
+        return ck
+
+    def add_checkpoint(self, t: float, point: int, state: bytes | None, note: str = "") -> None:
+        """Everything up to point ``point`` (at ``t``) is committed with the state to go on
+        from there; a run keeps only its newest checkpoint. ``state`` ``None``: the run could
+        not take one, and ``note`` says why (``--resume`` repeats it)."""
+        self.flush()
+        self._db.execute("INSERT OR REPLACE INTO checkpoint VALUES (?, ?, ?, ?, ?, ?, ?)",
+                         (self.run_id, t, point, self._seq, time.time(),
+                          None if state is None else sqlite3.Binary(state), note))
+        self._db.commit()
+
     def add_point(self, step: int, t: float, y: np.ndarray) -> None:
         self._points.append((self.run_id, step, t))
         rid = self.run_id
@@ -159,11 +207,13 @@ class Store:
         self._attempts.clear()
         self._last_flush = time.monotonic()
 
-    def add_reference(self, values: np.ndarray, variable_ids: Sequence[int]) -> None:
-        """``values``: (n_points, len(variable_ids)) reference at the stored points."""
-        rows = [(self.run_id, step, vid, float(values[step, j]))
+    def add_reference(self, values: np.ndarray, variable_ids: Sequence[int],
+                      first_step: int = 0) -> None:
+        """``values``: (n_points, len(variable_ids)) reference at the stored points from
+        ``first_step`` on."""
+        rows = [(self.run_id, first_step + step, vid, float(values[step, j]))
                 for j, vid in enumerate(variable_ids) for step in range(values.shape[0])]
-        self._db.executemany("INSERT INTO reference VALUES (?, ?, ?, ?)", rows)
+        self._db.executemany("INSERT OR REPLACE INTO reference VALUES (?, ?, ?, ?)", rows)
 
     def add_own_points(self, variable_ids: Sequence[int], times: np.ndarray,
                        values: np.ndarray) -> None:
@@ -194,6 +244,49 @@ class Store:
 
     def close(self) -> None:
         self._db.close()
+
+
+@dataclass
+class Checkpoint:
+    """A run's newest checkpoint: ``state`` is the pickled state of the run's loop and of every
+    sub-model at point ``point`` (time ``t``); ``attempt_seq`` attempts were stored by then."""
+
+    run_id: int
+    t: float
+    point: int
+    attempt_seq: int
+    state: bytes
+
+
+def read_checkpoint(path: str | Path, run_id: int | None = None,
+                    db: sqlite3.Connection | None = None) -> Checkpoint:
+    """Run ``run_id``'s newest checkpoint (``None``: the newest run's); ``ValueError`` saying
+    why there is none to resume from."""
+    own = db is None
+    db = db if db is not None else sqlite3.connect(path)
+    try:
+        if run_id is None:
+            row = db.execute("SELECT max(id) FROM run").fetchone()
+            if row is None or row[0] is None:
+                raise ValueError(f"{path} holds no run to resume")
+            run_id = int(row[0])
+        run = db.execute("SELECT status FROM run WHERE id=?", (run_id,)).fetchone()
+        if run is None:
+            raise ValueError(f"{path} holds no run {run_id} (see `cosimstep runs {path}`)")
+        if run[0] == "ok":
+            raise ValueError(f"run {run_id} in {path} completed: nothing to resume")
+        have = {r[1] for r in db.execute("PRAGMA table_info(checkpoint)")}
+        row = db.execute("SELECT t, point, attempt_seq, state, note FROM checkpoint "
+                         "WHERE run_id=?", (run_id,)).fetchone() if have else None
+        if row is None or row[3] is None:
+            why = f" ({row[4]})" if row is not None and row[4] else \
+                " (checkpoints are taken every --checkpoint-every seconds of a stored " \
+                "fixed-step run)"
+            raise ValueError(f"run {run_id} in {path} has no checkpoint{why}")
+        return Checkpoint(run_id, float(row[0]), int(row[1]), int(row[2]), bytes(row[3]))
+    finally:
+        if own:
+            db.close()
 
 
 @dataclass

@@ -14,6 +14,7 @@ value references: the master sits in a hot loop and should not build dictionarie
 from __future__ import annotations
 
 import math
+import pickle
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -127,6 +128,19 @@ class SubModel(ABC):
     def restore_state(self, token: Any) -> None:
         """Return to a state previously returned by :meth:`save_state`."""
         raise NotImplementedError(f"{type(self).__name__} cannot restore its state")
+
+    def serialize_state(self, token: Any) -> bytes:
+        """Bytes of a state :meth:`save_state` returned, for a checkpoint another process can
+        resume from (``cosimstep run --resume``). By default the token pickled: override this
+        and :meth:`deserialize_state` when it holds something pickle cannot carry (a handle,
+        a pointer), or raise ``NotImplementedError`` saying why the state cannot leave the
+        process."""
+        return pickle.dumps(token, protocol=pickle.HIGHEST_PROTOCOL)
+
+    def deserialize_state(self, data: bytes) -> Any:
+        """A token :meth:`restore_state` takes, from :meth:`serialize_state`'s bytes; called
+        after :meth:`initialize` in the resuming process."""
+        return pickle.loads(data)
 
     def time_events(self) -> Sequence[float]:
         """Times at which the sub-model changes abruptly; the master lands steps on them."""

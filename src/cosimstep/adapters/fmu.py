@@ -25,6 +25,7 @@ temporary folder by :meth:`FmuSubModel.initialize` and the folder is removed by
 
 from __future__ import annotations
 
+import pickle
 from collections.abc import Mapping
 from ctypes import c_double, c_int, c_size_t, c_void_p
 from pathlib import Path
@@ -281,6 +282,15 @@ class FmuSubModel(FmuBase):
         saved, derivatives_set, derivatives_stale = token
         self._restore_fmu_state(saved)
         self._derivatives_set, self._derivatives_stale = derivatives_set, derivatives_stale
+
+    def serialize_state(self, token: Any) -> bytes:
+        saved, derivatives_set, derivatives_stale = token
+        return pickle.dumps((self._serialize_fmu_state(saved), derivatives_set,
+                             derivatives_stale))
+
+    def deserialize_state(self, data: bytes) -> Any:
+        raw, derivatives_set, derivatives_stale = pickle.loads(data)
+        return self._deserialize_fmu_state(raw), derivatives_set, derivatives_stale
 
     def terminate(self) -> None:
         """Terminate and free the instance, free saved states, remove the unpacked files

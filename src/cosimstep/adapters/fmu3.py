@@ -115,3 +115,9 @@ class Fmu3SubModel(FmuBase):
         if not self.capabilities.can_save_state:
             super().restore_state(token)
         self._restore_fmu_state(token)
+
+    def serialize_state(self, token: Any) -> bytes:
+        return self._serialize_fmu_state(token)
+
+    def deserialize_state(self, data: bytes) -> Any:
+        return self._deserialize_fmu_state(data)

@@ -395,6 +395,37 @@ class FmuBase(SubModel):
         self._states.add(token)
         return token
 
+    def _serialize_fmu_state(self, saved: Any) -> bytes:
+        """The FMU's own bytes of a saved state (``fmi2SerializeFMUstate`` / FMI 3's)."""
+        if not getattr(self.interface, "canSerializeFMUstate", False):
+            raise NotImplementedError(f"FMU '{self.name}' cannot serialize its state "
+                                      "(canSerializeFMUstate is false in its model description)")
+        if not isinstance(saved, _SavedState) or saved.owner is not self:
+            raise ValueError(f"FMU '{self.name}': serialize_state got a state this instance "
+                             "did not save")
+        fmu = self._live()
+        try:
+            if self.fmi_version == "3.0":
+                return bytes(fmu.serializeFMUState(saved.pointer))
+            return bytes(fmu.serializeFMUstate(saved.pointer))
+        except FMICallException as exc:
+            raise self._error(f"{self.CALL_PREFIX}Serialize{self._state_word}", exc) from None
+
+    def _deserialize_fmu_state(self, data: bytes) -> _SavedState:
+        """A saved state of this instance from :meth:`_serialize_fmu_state`'s bytes."""
+        fmu = self._live()
+        pointer = self._spare_states.pop() if self._spare_states else c_void_p()
+        try:
+            if self.fmi_version == "3.0":
+                fmu.deserializeFMUState(data, pointer)
+            else:
+                fmu.deSerializeFMUstate(data, pointer)
+        except FMICallException as exc:
+            raise self._error(f"{self.CALL_PREFIX}DeSerialize{self._state_word}", exc) from None
+        token = _SavedState(self, pointer)
+        self._states.add(token)
+        return token
+
     def _restore_fmu_state(self, saved: Any) -> None:
         if not isinstance(saved, _SavedState) or saved.owner is not self:
             raise ValueError(f"FMU '{self.name}': restore_state got a state this instance did "

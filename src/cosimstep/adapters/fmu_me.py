@@ -40,6 +40,7 @@ the same as ``OdeSubModel.get_output_derivatives``. Other outputs have no deriva
 from __future__ import annotations
 
 import math
+import pickle
 from collections.abc import Callable, Mapping
 from ctypes import c_double, c_uint
 from pathlib import Path
@@ -231,6 +232,15 @@ class MeSubModel(FmuBase):
         saved = self._save_fmu_state() if self._fmu_state else None
         return (saved, self._t, self._x.copy(), self._u.copy(), self._du.copy(),
                 self._next_event, len(self.events))
+
+    def serialize_state(self, token: Any) -> bytes:
+        saved, *rest = token
+        return pickle.dumps((None if saved is None else self._serialize_fmu_state(saved),
+                             *rest))
+
+    def deserialize_state(self, data: bytes) -> Any:
+        raw, *rest = pickle.loads(data)
+        return (None if raw is None else self._deserialize_fmu_state(raw), *rest)
 
     def restore_state(self, token: Any) -> None:
         if not self.capabilities.can_save_state:
