@@ -102,6 +102,17 @@ def main() -> None:
               "outside).")
 @click.option("--fmu-logging", is_flag=True, help="Instantiate FMUs with logging on and "
               "echo every message they log to stderr as it comes.")
+@click.option("--checkpoint-every", type=float, default=60.0, show_default=True, metavar="S",
+              help="Fixed-step runs storing every point: write a checkpoint every S seconds "
+              "of wall time (0: none), which --resume continues from.")
+@click.option("--checkpoint-steps", type=int, metavar="N", help="A checkpoint every N steps "
+              "as well.")
+@click.option("--resume", "resume_db", type=click.Path(dir_okay=False), metavar="DB",
+              help="Continue an interrupted or killed run stored in DB from its last "
+              "checkpoint (same SYSTEM and options); it keeps its id and ends as if it had "
+              "never stopped.")
+@click.option("--run", "run_id", type=int, metavar="ID", help="With --resume: which run "
+              "(default: the newest in DB).")
 @click.option("-v", "--verbose", is_flag=True, help="A failed run also prints its traceback, "
               "the sub-model's own exception included (on stderr).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar and only the status line "
@@ -113,11 +124,47 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
         out: str | None, no_store: bool, max_wall: float | None, max_calls: int | None,
         as_json: bool, output_interval: float | None, output_steps: bool,
         call_timeout: float | None, inputs_csv: str | None, fmu_logging: bool,
-        verbose: bool, quiet: bool) -> None:
+        checkpoint_every: float, checkpoint_steps: int | None, resume_db: str | None,
+        run_id: int | None, verbose: bool, quiet: bool) -> None:
     """Co-simulate SYSTEM (a TOML system file or an SSP archive, .ssp).
 
     With --tol and no --controller the default adaptive controller runs.
     """
+    bad = _flag_problems(until, max_wall, max_calls, output_interval, output_steps,
+                         call_timeout)
+    bad += _checkpoint_problems(checkpoint_every, checkpoint_steps, resume_db, run_id, out,
+                                no_store, output_interval)
+    if bad:
+        _config_exit(ConfigurationError(bad, "the command line"))
+    overrides = {"parameters": _values(params, "--param"), "start": _values(starts, "--start")}
+    set_fmu_logging(fmu_logging)
+    try:
+        spec = load_system(system, until, overrides, inputs=inputs_csv)
+    except ConfigurationError as exc:
+        _config_exit(exc)
+    checkpoints = {"checkpoint_every": checkpoint_every or None,
+                   "checkpoint_steps": checkpoint_steps}
+    if resume_db is not None:
+        checkpoints["resume"] = _resumable(resume_db, run_id)
+    result = _run(spec, master, extrapolation, controller, step, tol, seed,
+                  resume_db or out, _options(options), interpolation, estimate,
+                  store=not no_store,
+                  budget={"max_wall": max_wall, "max_calls": max_calls, **checkpoints},
+                  resync=resync, progress=False if quiet else None, call_timeout=call_timeout,
+                  output=(output_interval, output_steps))
+    if quiet and not as_json:
+        click.echo(f"status: {result.status} — {result.message}")
+    else:
+        _report(result, as_json)
+    if verbose and result.traceback:
+        click.echo(result.traceback, err=True, nl=False)
+    sys.exit(0 if result.success else EXIT_FAILED)
+
+
+def _flag_problems(until: float | None, max_wall: float | None, max_calls: int | None,
+                   output_interval: float | None, output_steps: bool,
+                   call_timeout: float | None) -> list[Problem]:
+    """What is wrong with the numeric flags of :func:`run`."""
     bad = [Problem(flag, f"must be a positive number, got {value}", fix)
            for flag, value, fix in (("--until", until, "e.g. --until 10"),
                                     ("--max-wall", max_wall, "e.g. --max-wall 60"),
@@ -131,26 +178,38 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
     if call_timeout is not None and not (math.isfinite(call_timeout) and call_timeout >= 0):
         bad.append(Problem("--call-timeout", f"must be 0 (no limit) or positive, got "
                            f"{call_timeout}", "e.g. --call-timeout 60"))
-    if bad:
-        _config_exit(ConfigurationError(bad, "the command line"))
-    overrides = {"parameters": _values(params, "--param"), "start": _values(starts, "--start")}
-    set_fmu_logging(fmu_logging)
+    return bad
+
+
+def _checkpoint_problems(every: float, steps: int | None, resume_db: str | None,
+                         run_id: int | None, out: str | None, no_store: bool,
+                         output_interval: float | None) -> list[Problem]:
+    """What is wrong with the checkpoint and resume flags (see :func:`run`)."""
+    bad = []
+    if not (math.isfinite(every) and every >= 0):
+        bad.append(Problem("--checkpoint-every", f"must be 0 (none) or positive, got {every}",
+                           "e.g. --checkpoint-every 60"))
+    if steps is not None and steps <= 0:
+        bad.append(Problem("--checkpoint-steps", f"must be positive, got {steps}",
+                           "e.g. --checkpoint-steps 10000"))
+    if run_id is not None and resume_db is None:
+        bad.append(Problem("--run", "names the run to resume", "give --resume DB too"))
+    if resume_db is not None and (no_store or out is not None or output_interval is not None):
+        bad.append(Problem("--resume", "continues the run in DB, storing every point there",
+                           "leave out --out, --no-store and --output-interval"))
+    return bad
+
+
+def _resumable(db: str, run_id: int | None) -> int:
+    """The id of the run in ``db`` to resume (exit 2 saying why there is none)."""
+    from cosimstep.store import read_checkpoint
+
     try:
-        spec = load_system(system, until, overrides, inputs=inputs_csv)
-    except ConfigurationError as exc:
-        _config_exit(exc)
-    result = _run(spec, master, extrapolation, controller, step, tol, seed, out,
-                  _options(options), interpolation, estimate, store=not no_store,
-                  budget={"max_wall": max_wall, "max_calls": max_calls}, resync=resync,
-                  progress=False if quiet else None, call_timeout=call_timeout,
-                  output=(output_interval, output_steps))
-    if quiet and not as_json:
-        click.echo(f"status: {result.status} — {result.message}")
-    else:
-        _report(result, as_json)
-    if verbose and result.traceback:
-        click.echo(result.traceback, err=True, nl=False)
-    sys.exit(0 if result.success else EXIT_FAILED)
+        return read_checkpoint(db, run_id).run_id
+    except (ValueError, sqlite3.Error) as exc:
+        _config_exit(ConfigurationError([Problem("--resume", str(exc),
+                                                 "see `cosimstep runs DB`")], db))
+    raise AssertionError  # unreachable: _config_exit exits
 
 
 def _values(pairs: tuple[str, ...], flag: str) -> dict[str, float]:
@@ -205,10 +264,19 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
     _check_scheme(ctrl, opts, spec)
     _check_estimate(estimate, ctrl, spec)
     db = (out or f"{spec.name}.db") if store else None
-    return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference, store=db,
-                    name=spec.name, config={"source": spec.source, "system": spec.raw},
-                    progress=progress, estimate=estimate, output_interval=output[0],
-                    output_steps=output[1], **(budget or {}))
+    try:
+        return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference,
+                        store=db, name=spec.name,
+                        config={"source": spec.source, "system": spec.raw},
+                        progress=progress, estimate=estimate, output_interval=output[0],
+                        output_steps=output[1], **(budget or {}))
+    except ValueError as exc:
+        if (budget or {}).get("resume") is None:
+            raise
+        _config_exit(ConfigurationError([Problem("--resume", str(exc),
+                                                 "resume with the same system and options")],
+                                        spec.source))
+    raise AssertionError  # unreachable: _config_exit exits
 
 
 def _controller(name: str | None, settings: dict[str, Any], source: str) -> Any:

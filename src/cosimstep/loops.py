@@ -139,10 +139,7 @@ class ControllerLoop(_Loop):
             self._attempt(min(event, limit), event)
 
     def start(self) -> None:
-        """Initialize the sub-models and record the first point (or resume)."""
-        if self.resume_from is not None:
-            restore(self, self.resume_from, self.t0)
-            return
+        """Initialize the sub-models and record the first point."""
         t = self.t0
         self._clock = _Clock(t)
         y0 = self.runner.initialize(t)

@@ -278,14 +278,15 @@ class Synchronous(Scheme):
         compiled, runner = self.compiled, self.runner
         times, values, steps = self.loop.results()
         rejected = self.loop.rejected
-        models = {n: ModelStats(int(c), len(steps), rejected, 0, steps.copy(), times,
+        accepted = len(steps) + self.offset  # a resumed run's steps before its checkpoint too
+        models = {n: ModelStats(int(c), accepted, rejected, 0, steps.copy(), times,
                                 values[:, compiled.output_slices[k]])
                   for k, (n, c) in enumerate(zip(compiled.names, runner.calls))}
         return Outcome(
             float(self.loop.t), times, values, steps, models,
             {n: int(c) for n, c in zip(compiled.names, runner.calls)},
             {n: float(s) for n, s in zip(compiled.names, runner.time_in_models)},
-            len(steps), rejected, getattr(self.controller, "error_estimate", None),
+            accepted, rejected, getattr(self.controller, "error_estimate", None),
             list(self.fired))
 
     def error(self, reference: Reference, out: Outcome,
@@ -483,6 +484,7 @@ class Run:
         the store is closed if ``raise_on_failure``."""
         scheme, compiled = self.scheme, self.scheme.compiled
         sink: Any = Store(self.store) if self.store is not None else None
+        resumed, checkpoint = "", None
         if sink is not None and self.output is not None:
             sink = GridStore(sink, self.output[0], scheme.t0, self.output[1])
         if sink is not None and self.resume is not None:
@@ -492,6 +494,7 @@ class Run:
                 sink.close()
                 raise
             scheme.resume(self.checkpoints, checkpoint)
+            resumed = f" (resumed from its checkpoint at t = {checkpoint.t:.9g})"
         elif sink is not None:
             sink.begin(self.name, self.settings, compiled.output_names, compiled.output_units)
             if self.checkpoints is not None and self.output is None \
@@ -499,6 +502,8 @@ class Run:
                 scheme.resume(self.checkpoints, None)
         wall0 = time.perf_counter()
         bar = _progress(self.progress, scheme.t0, scheme.until)
+        if bar is not None and checkpoint is not None:
+            bar.update(checkpoint.t - scheme.t0)
         try:
             with _terminate_as_interrupt():
                 status, message, failure = self._drive(sink, bar)
@@ -509,7 +514,7 @@ class Run:
                 if bar is not None:
                     bar.close()
         wall = time.perf_counter() - wall0
-        result = self._result(status, message, wall, reference, sink)
+        result = self._result(status, message + resumed, wall, reference, sink)
         if failure is not None and status == "failed":
             result.traceback = "".join(traceback.format_exception(failure))
         if amend is not None:
@@ -566,6 +571,11 @@ class Run:
                 sink: Store | None) -> SimulationResult:
         scheme, compiled = self.scheme, self.scheme.compiled
         out = scheme.outcome()
+        if sink is not None and scheme.offset:  # resumed: the points before it, from the store
+            times, values = sink.points_before(scheme.offset)
+            out.times = np.concatenate([times, out.times])
+            out.values = np.vstack([values, out.values])
+            out.steps = np.concatenate([np.diff(out.times[:scheme.offset + 1]), out.steps])
         err, ref_values = None, None
         names = [n for n in compiled.output_names if reference is not None
                  and n in reference.mapping]
@@ -575,8 +585,7 @@ class Run:
             scheme.store(sink, out)
             sink.add_events(out.events)
             if ref_values is not None:
-                sink.add_reference(ref_values, [compiled.output_names.index(n) for n in names],
-                                   scheme.offset)
+                sink.add_reference(ref_values, [compiled.output_names.index(n) for n in names])
         return SimulationResult(
             status=status, message=message, t_end=out.t_end, names=compiled.output_names,
             units=compiled.output_units, times=out.times, values=out.values, calls=out.calls,

@@ -83,7 +83,7 @@ def simulate(
     resume:
         The id of a run in ``store`` to continue from its newest checkpoint, with the same
         system and settings; it keeps its id, and ends as one run that had never stopped. The
-        result holds the points from just before the checkpoint on (the store has them all).
+        result is the whole run (the points before the checkpoint read back from the store).
     """
     budget = Budget(max_wall, max_calls)
     if estimate not in ("sum", "rerun"):

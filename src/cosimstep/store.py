@@ -143,13 +143,26 @@ class Store:
         db.execute("DELETE FROM point WHERE run_id=? AND step>?", (rid, ck.point))
         db.execute("DELETE FROM sample WHERE run_id=? AND step>?", (rid, ck.point))
         db.execute("DELETE FROM attempt WHERE run_id=? AND seq>=?", (rid, ck.attempt_seq))
-        for table in ("calls", "event", "reference"):
+        for table in ("calls", "event", "reference"):  # written again at the end
             db.execute(f"DELETE FROM {table} WHERE run_id=?", (rid,))
         db.execute("UPDATE run SET status='running', message=NULL, host=?, pid=?, heartbeat=? "
                    "WHERE id=?", (socket.gethostname(), os.getpid(), time.time(), rid))
         db.commit()
         self.run_id, self._n_vars, self._seq = rid, len(names), ck.attempt_seq
         return ck
+
+    def points_before(self, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """The stored points ``0 … step - 1`` of this run: times and values (one row each)."""
+        self.flush()
+        times = np.array([r[0] for r in self._db.execute(
+            "SELECT t FROM point WHERE run_id=? AND step<? ORDER BY step",
+            (self.run_id, step))], dtype=float)
+        values = np.full((times.size, self._n_vars), np.nan)
+        for var, at, value in self._db.execute(
+                "SELECT variable_id, step, value FROM sample WHERE run_id=? AND step<?",
+                (self.run_id, step)):
+            values[at, var] = value
+        return times, values
 
     def add_checkpoint(self, t: float, point: int, state: bytes | None, note: str = "") -> None:
         """Everything up to point ``point`` (at ``t``) is committed with the state to go on
@@ -270,11 +283,16 @@ def read_checkpoint(path: str | Path, run_id: int | None = None,
             if row is None or row[0] is None:
                 raise ValueError(f"{path} holds no run to resume")
             run_id = int(row[0])
-        run = db.execute("SELECT status FROM run WHERE id=?", (run_id,)).fetchone()
+        _add_owner_columns(db)
+        run = db.execute("SELECT status, host, pid, heartbeat FROM run WHERE id=?",
+                         (run_id,)).fetchone()
         if run is None:
             raise ValueError(f"{path} holds no run {run_id} (see `cosimstep runs {path}`)")
         if run[0] == "ok":
             raise ValueError(f"run {run_id} in {path} completed: nothing to resume")
+        if run[0] == "running" and _alive(dict(zip(("host", "pid", "heartbeat"), run[1:]))):
+            raise ValueError(f"run {run_id} in {path} is still running (process {run[2]} on "
+                             f"{run[1]})")
         have = {r[1] for r in db.execute("PRAGMA table_info(checkpoint)")}
         row = db.execute("SELECT t, point, attempt_seq, state, note FROM checkpoint "
                          "WHERE run_id=?", (run_id,)).fetchone() if have else None

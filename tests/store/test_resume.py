@@ -1,0 +1,163 @@
+"""Checkpoints and ``--resume`` (issue 19, item 4): a fixed-step run killed with -9 and resumed
+from its last checkpoint stores what the uninterrupted run stores, bit for bit; a run that cannot
+be resumed says why, with exit code 2."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import cosimstep
+from cosimstep.cli import main
+from cosimstep.store import read_run, run_table
+
+FMU_PENDULUM = """
+name = "fmu_pendulum"
+until = 10.0
+[models.bar1]
+type = "fmu"
+recipe = "pendulum_bar1"
+start = { theta = 0.4, theta2 = -0.3 }
+[models.bar2]
+type = "fmu"
+recipe = "pendulum_bar2"
+start = { theta = -0.3, theta1 = 0.4 }
+[[connections]]
+from = "bar1.theta"
+to = "bar2.theta1"
+[[connections]]
+from = "bar1.omega"
+to = "bar2.omega1"
+[[connections]]
+from = "bar2.theta"
+to = "bar1.theta2"
+[[connections]]
+from = "bar2.omega"
+to = "bar1.omega2"
+[master]
+name = "jacobi"
+extrapolation = 2
+[controller]
+name = "fixed"
+step = 1e-4
+"""
+
+
+def _same_store(a: Path, b: Path) -> None:
+    x, y = read_run(a), read_run(b)
+    assert y.status == x.status == "ok"
+    assert np.array_equal(x.times, y.times) and np.array_equal(x.values, y.values)
+    assert np.array_equal(x.attempts, y.attempts)
+    assert x.summary["calls"] == y.summary["calls"]
+    assert x.summary["steps_accepted"] == y.summary["steps_accepted"]
+
+
+def _checkpoint(db: Path) -> tuple[float, int] | None:
+    try:
+        with sqlite3.connect(db) as con:
+            return con.execute("SELECT t, point FROM checkpoint WHERE state IS NOT NULL"
+                               ).fetchone()
+    except sqlite3.OperationalError:
+        return None  # not created yet
+
+
+def test_a_killed_fmu_run_resumes_bit_for_bit(tmp_path: Path) -> None:
+    """Two C FMUs (their states serialized by the FMUs), Jacobi with quadratic extrapolation,
+    100,000 steps: killed with -9 after a checkpoint, resumed, equal to the uninterrupted run."""
+    system = tmp_path / "fmu.toml"
+    system.write_text(FMU_PENDULUM)
+    killed, whole = tmp_path / "killed.db", tmp_path / "whole.db"
+    proc = subprocess.Popen([sys.executable, "-m", "cosimstep", "run", str(system), "-q",
+                             "--out", str(killed), "--checkpoint-every", "0.2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline, checkpoint = time.monotonic() + 120, None
+    while time.monotonic() < deadline and checkpoint is None and proc.poll() is None:
+        time.sleep(0.05)
+        checkpoint = _checkpoint(killed)
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate()
+    assert checkpoint is not None and 0 < checkpoint[0] < 10.0
+    assert [r["status"] for r in run_table(killed)] == ["abandoned"]
+
+    res = CliRunner().invoke(main, ["run", str(system), "--resume", str(killed), "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.output)
+    assert "resumed from its checkpoint at t = " in out["message"]
+    assert out["calls"] == {"bar1": 100_000, "bar2": 100_000}
+    CliRunner().invoke(main, ["run", str(system), "--out", str(whole), "-q"])
+    _same_store(whole, killed)
+    again = CliRunner().invoke(main, ["run", str(system), "--resume", str(killed)])
+    assert again.exit_code == 2 and "completed: nothing to resume" in again.output
+
+
+@pytest.mark.parametrize("order", [0, 2])
+def test_python_sub_models_resume_from_their_pickled_states(examples: Path, tmp_path: Path,
+                                                            order: int) -> None:
+    """The split double pendulum of Python sub-models (RK4 inside), stopped by a call budget
+    and resumed in-process: the same store as the uninterrupted run."""
+    def run(db: Path, **kw: Any) -> cosimstep.SimulationResult:
+        spec = cosimstep.load_system(examples / "double_pendulum_slow.toml")
+        return cosimstep.simulate(spec.system, 3.0, cosimstep.Fixed(1e-3),
+                                  cosimstep.MasterOptions("gauss-seidel", order), store=db,
+                                  reference=spec.reference, **kw)
+
+    run(tmp_path / "whole.db")
+    part = run(tmp_path / "part.db", checkpoint_steps=500, max_calls=3000)
+    assert part.status == "timed_out"
+    resumed = run(tmp_path / "part.db", resume=1)
+    assert resumed.success and resumed.calls == {"bar1": 3000, "bar2": 3000}
+    assert np.array_equal(resumed.times, read_run(tmp_path / "whole.db").times)  # the whole run
+    _same_store(tmp_path / "whole.db", tmp_path / "part.db")
+    assert np.array_equal(read_run(tmp_path / "whole.db").reference,
+                          read_run(tmp_path / "part.db").reference)
+
+
+class _Unpicklable(cosimstep.OdeSubModel):
+    def serialize_state(self, token: Any) -> bytes:
+        raise NotImplementedError("its solver holds an open handle")
+
+
+def test_runs_that_cannot_resume_say_why(examples: Path, tmp_path: Path) -> None:
+    toml = examples / "double_pendulum_slow.toml"
+    db = tmp_path / "r.db"
+    # an adaptive run takes no checkpoints: --resume refuses, naming the reason
+    args = ["run", str(toml), "--until", "1", "--out", str(db), "--max-calls", "20"]
+    assert CliRunner().invoke(main, [*args, "--tol", "1e-4"]).exit_code == 1  # timed_out
+    res = CliRunner().invoke(main, ["run", str(toml), "--until", "1", "--tol", "1e-4",
+                                    "--resume", str(db)])
+    assert res.exit_code == 2 and "has no checkpoint" in res.output
+    # a fixed-step run resumed with other options
+    db2 = tmp_path / "f.db"
+    fixed = ["run", str(toml), "--until", "1", "--step", "1e-3", "--controller", "fixed"]
+    CliRunner().invoke(main, [*fixed, "--out", str(db2), "--max-calls", "600",
+                              "--checkpoint-steps", "100"])
+    res = CliRunner().invoke(main, [*fixed[:-1], "rkf45", "--tol", "1e-4",
+                                    "--resume", str(db2)])
+    assert res.exit_code == 2 and "cannot resume run 1" in res.output \
+        and "only fixed-step runs" in res.output
+    res = CliRunner().invoke(main, [*fixed, "--extrapolation", "0", "--resume", str(db2)])
+    assert res.exit_code == 2 and "other settings (master)" in res.output
+    res = CliRunner().invoke(main, [*fixed, "--resume", str(db2), "--run", "7"])
+    assert res.exit_code == 2 and "no run 7" in res.output
+    res = CliRunner().invoke(main, [*fixed, "--resume", str(db2), "--out", "x.db"])
+    assert res.exit_code == 2 and "leave out --out" in res.output
+    # a sub-model that cannot serialize its state: the store says so, --resume repeats it
+    spec = cosimstep.load_system(toml)
+    bar = spec.system.models["bar2"]
+    bar.__class__ = _Unpicklable
+    db3 = tmp_path / "u.db"
+    r = cosimstep.simulate(spec.system, 1.0, cosimstep.Fixed(1e-3), store=db3,
+                           checkpoint_steps=100, max_calls=600)
+    assert r.status == "timed_out"
+    with pytest.raises(ValueError, match=r"'bar2' cannot serialize its state.*open handle"):
+        cosimstep.simulate(spec.system, 1.0, cosimstep.Fixed(1e-3), store=db3, resume=1)
