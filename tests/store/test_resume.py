@@ -161,3 +161,42 @@ def test_runs_that_cannot_resume_say_why(examples: Path, tmp_path: Path) -> None
     assert r.status == "timed_out"
     with pytest.raises(ValueError, match=r"'bar2' cannot serialize its state.*open handle"):
         cosimstep.simulate(spec.system, 1.0, cosimstep.Fixed(1e-3), store=db3, resume=1)
+
+
+@pytest.mark.parametrize("delay", [0.3, 0.9])
+def test_ctrl_c_during_an_fmu_run_keeps_every_point_once(tmp_path: Path, delay: float) -> None:
+    """SIGINT to a run of two C FMUs (unpacking, stepping or writing; benchmarks/interrupts.py
+    does this 50 times at random): exit 1, no traceback, status interrupted, points whole,
+    no unpacked FMU folder left."""
+    import os
+
+    system = tmp_path / "fmu.toml"
+    system.write_text(FMU_PENDULUM.replace("until = 10.0", "until = 30.0"))
+    db, tmp = tmp_path / "int.db", tmp_path / "tmp"
+    tmp.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "cosimstep", "run", str(system), "-q",
+                             "--out", str(db)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "TMPDIR": str(tmp)})
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not run_table_has_run(db):
+        time.sleep(0.01)
+    time.sleep(delay)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1 and "Traceback" not in err, err
+    stored = read_run(db)
+    assert stored.status == "interrupted" and "interrupted by the user" in stored.message
+    with sqlite3.connect(db) as con:
+        steps = [r[0] for r in con.execute("SELECT step FROM point ORDER BY step")]
+        accepted = con.execute("SELECT COUNT(*) FROM attempt WHERE accepted=1").fetchone()[0]
+    assert steps == list(range(len(steps))) and accepted == len(steps) - 1
+    assert stored.summary["t_end"] == stored.times[-1] < 30.0
+    assert not [p for p in tmp.iterdir() if p.name.startswith("cosimstep-")]
+
+
+def run_table_has_run(db: Path) -> bool:
+    try:
+        with sqlite3.connect(db) as con:
+            return con.execute("SELECT COUNT(*) FROM run").fetchone()[0] > 0
+    except sqlite3.OperationalError:
+        return False
