@@ -103,8 +103,8 @@ def main() -> None:
 @click.option("--fmu-logging", is_flag=True, help="Instantiate FMUs with logging on and "
               "echo every message they log to stderr as it comes.")
 @click.option("--checkpoint-every", type=float, default=60.0, show_default=True, metavar="S",
-              help="Fixed-step runs storing every point: write a checkpoint every S seconds "
-              "of wall time (0: none), which --resume continues from.")
+              help="Synchronous runs storing every point: write a checkpoint every S "
+              "seconds of wall time (0: none), which --resume continues from.")
 @click.option("--checkpoint-steps", type=int, metavar="N", help="A checkpoint every N steps "
               "as well.")
 @click.option("--resume", "resume_db", type=click.Path(dir_okay=False), metavar="DB",

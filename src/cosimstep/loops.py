@@ -58,6 +58,13 @@ class _Context:
         self.history = np.array(self.rows[first:])
         self.times = self.all_times[first:]
 
+    def reset(self, times: list[float], rows: list[np.ndarray], segment: int) -> None:
+        """Hold these points (a resumed run's), the segment starting at row ``segment``."""
+        self.all_times, self.rows, self._segment = list(times), list(rows), segment
+        first = max(segment, len(rows) - HISTORY_ROWS)
+        self.history = np.array(self.rows[first:])
+        self.times = self.all_times[first:]
+
     def restart(self) -> None:
         """A time event at the last point: extrapolate only from points at or after it."""
         self._segment = len(self.rows) - 1
@@ -129,6 +136,9 @@ class ControllerLoop(_Loop):
         self._located = math.nan  # the time a located crossing lands on
         self._h = 0.0  # the step the controller proposed last
         self._hmax = math.inf
+        self.offset = 0  # the store's index of the first point held (resumed: not 0)
+        self.checkpoints: Checkpoints | None = None  # when to write checkpoints, if at all
+        self.resume_from: Checkpoint | None = None  # start from this instead of t0
 
     def act(self, limit: float) -> None:
         """Steps until ``limit`` (a step that would pass it lands on it)."""
@@ -139,7 +149,10 @@ class ControllerLoop(_Loop):
             self._attempt(min(event, limit), event)
 
     def start(self) -> None:
-        """Initialize the sub-models and record the first point."""
+        """Initialize the sub-models and record the first point (or resume)."""
+        if self.resume_from is not None:
+            restore(self, self.resume_from, self.t0)
+            return
         t = self.t0
         self._clock = _Clock(t)
         y0 = self.runner.initialize(t)
@@ -187,7 +200,10 @@ class ControllerLoop(_Loop):
             ctx.restart()
         self.steps.append(h)
         if sink is not None:
-            sink.add_point(len(self.steps), t, attempt.y)
+            sink.add_point(self.offset + len(self.steps), t, attempt.y)
+            if self.checkpoints is not None and self.checkpoints.due(len(self.steps)) \
+                    and self.watch is None:
+                self.checkpoints.take(self, len(self.steps))
         if self.bar is not None:
             self.bar.update(h)
         if self.watch is not None and (located or crossed):
@@ -228,6 +244,33 @@ class ControllerLoop(_Loop):
             return watch(self.ctx.step(t, c))
 
         return crossing(g, 0.0, h, g0, g1, EVENT_TOL * max(1.0, abs(t)))
+
+    def snapshot(self, history: int) -> dict[str, Any]:
+        """The loop's own state for a checkpoint (:mod:`cosimstep.checkpoint`): its clock, the
+        controller, the last ``history + 1`` points of the segment."""
+        ctx, clock = self.ctx, self._clock
+        assert clock is not None
+        n = len(ctx.rows) - 1
+        first = max(ctx._segment, n - history)
+        return {"first": self.offset + first, "segment": ctx._segment - first,
+                "clock": (clock._sum, clock._carry), "times": ctx.all_times[first:],
+                "rows": [r.copy() for r in ctx.rows[first:]], "steps": self.steps[first:],
+                "rejected": self.rejected, "failed_trials": self.failed_trials,
+                "h": self._h, "controller": self.controller}
+
+    def resume_snapshot(self, state: dict[str, Any]) -> None:
+        """Go on from :meth:`snapshot`'s state (the sub-models and master already are)."""
+        self.offset = state["first"]
+        self.ctx.reset(state["times"], state["rows"], max(state["segment"], 0))
+        self.t = state["times"][-1]
+        self._clock = _Clock(self.t0)
+        self._clock._sum, self._clock._carry = state["clock"]
+        self.steps = list(state["steps"])
+        self.rejected, self.failed_trials = state["rejected"], state["failed_trials"]
+        self._h = state["h"]
+        # the same object stays the scheme's (its error estimate is read at the end)
+        vars(self.controller).update(vars(state["controller"]))
+        self._hmax = self.runner.max_step
 
     def last(self) -> np.ndarray:
         """The outputs at the current time."""
@@ -397,6 +440,32 @@ class FixedLoop(_Loop):
                     self.budget.check(self._calls())
         self._state = (clock, carry, segment, due)
 
+    def snapshot(self, history: int) -> dict[str, Any]:
+        """The loop's own state for a checkpoint (:mod:`cosimstep.checkpoint`): its clock and
+        the last ``history + 1`` points of the segment."""
+        assert self._state is not None
+        clock, carry, segment, _ = self._state
+        n = self.n
+        first = max(segment, n - history)
+        return {"first": self.offset + first, "segment": self.offset + segment,
+                "clock": clock, "carry": carry, "times": self.times[first:n + 1].copy(),
+                "rows": self.table[first:n + 1].copy(), "hs": self.hs[first:n].copy(),
+                "rejected": self.rejected}
+
+    def resume_snapshot(self, state: dict[str, Any]) -> None:
+        """Go on from :meth:`snapshot`'s state (the sub-models and master already are)."""
+        rows = state["rows"]
+        k = rows.shape[0]
+        self.offset = state["first"]
+        self.times[:k], self.table[:k], self.hs[:k - 1] = state["times"], rows, state["hs"]
+        self.n, self.t = k - 1, float(state["times"][-1])
+        self.rejected = state["rejected"]
+        self._state = (state["clock"], state["carry"],
+                       max(state["segment"] - state["first"], 0), k)
+        self.lean = self.runner.held_kernel() or self.runner.extrapolating_kernel()
+        self._stored, self._shown = k, k - 1
+        self._published = (k - 1, time.perf_counter())
+
     def last(self) -> np.ndarray:
         """The outputs at the current time."""
         return self.table[self.n]
@@ -428,7 +497,7 @@ class FixedLoop(_Loop):
                                             self.hs[first - 1:n].tolist())
             self._stored = n + 1
             if self.checkpoints is not None and self.checkpoints.due(n):
-                self.checkpoints.take(self)
+                self.checkpoints.take(self, n)
         if self.bar is not None and n > self._shown:
             self.bar.update(float(np.sum(self.hs[self._shown:n])))
             self._shown = n

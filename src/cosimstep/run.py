@@ -146,9 +146,6 @@ class Synchronous(Scheme):
         return [self.runner]
 
     def resumable(self) -> str | None:
-        if type(self.controller) is not Fixed:
-            return (f"only fixed-step runs take checkpoints (this one: controller "
-                    f"'{self.controller.name}', whose own state a checkpoint would need too)")
         if self.state_events or self.changing or any(
                 isinstance(m, DiscreteEventModel) for m in self.compiled.models):
             return "runs with discrete events or discrete outputs cannot be resumed yet"
@@ -159,7 +156,7 @@ class Synchronous(Scheme):
 
     @property
     def offset(self) -> int:
-        return self.loop.offset if isinstance(self.loop, FixedLoop) else 0
+        return self.loop.offset if self.loop is not None else 0
 
     def actors(self, kernel: Kernel, sink: Store | None, bar: Any) -> list[Actor]:
         # The fixed step needs no controller, context or attempt per step: a lean loop gives
@@ -173,6 +170,8 @@ class Synchronous(Scheme):
         else:
             self.loop = ControllerLoop(self.runner, self.controller, self.t0, self.until,
                                        self.events, sink, bar)
+            self.loop.checkpoints = getattr(self, "_checkpoints", None)
+            self.loop.resume_from = getattr(self, "_resume_from", None)
         if watched and isinstance(self.loop, ControllerLoop):
             self.loop.watch, self.loop.fire = self._watch, self._fire_crossed
         discrete = [_EventActor(self, k) for k, m in enumerate(self.compiled.models)

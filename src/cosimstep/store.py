@@ -298,8 +298,8 @@ def read_checkpoint(path: str | Path, run_id: int | None = None,
                          "WHERE run_id=?", (run_id,)).fetchone() if have else None
         if row is None or row[3] is None:
             why = f" ({row[4]})" if row is not None and row[4] else \
-                " (checkpoints are taken every --checkpoint-every seconds of a stored " \
-                "fixed-step run)"
+                " (synchronous runs that store every point take one every " \
+                "--checkpoint-every seconds)"
             raise ValueError(f"run {run_id} in {path} has no checkpoint{why}")
         return Checkpoint(run_id, float(row[0]), int(row[1]), int(row[2]), bytes(row[3]))
     finally:

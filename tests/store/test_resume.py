@@ -100,23 +100,33 @@ def test_a_killed_fmu_run_resumes_bit_for_bit(tmp_path: Path) -> None:
     assert again.exit_code == 2 and "completed: nothing to resume" in again.output
 
 
-@pytest.mark.parametrize("order", [0, 2])
+@pytest.mark.parametrize("controller, order", [("fixed", 0), ("fixed", 2), ("pc", 2),
+                                               ("rkf45", 2), ("random", 1)])
 def test_python_sub_models_resume_from_their_pickled_states(examples: Path, tmp_path: Path,
+                                                            controller: str,
                                                             order: int) -> None:
-    """The split double pendulum of Python sub-models (RK4 inside), stopped by a call budget
-    and resumed in-process: the same store as the uninterrupted run."""
+    """The mixed double pendulum of Python sub-models (RK4 and solve_ivp inside), stopped by
+    a call budget halfway and resumed in-process: the same store as the uninterrupted run —
+    fixed step, and adaptive controllers whose state (proposed step, error budget, error
+    memory, random generator) the checkpoint pickles."""
+    from cosimstep.controllers import make_controller
+
     def run(db: Path, **kw: Any) -> cosimstep.SimulationResult:
-        spec = cosimstep.load_system(examples / "double_pendulum_slow.toml")
-        return cosimstep.simulate(spec.system, 3.0, cosimstep.Fixed(1e-3),
+        spec = cosimstep.load_system(examples / "double_pendulum_mixed.toml")
+        ctrl = {"fixed": lambda: make_controller("fixed", 1e-3, None),
+                "random": lambda: make_controller("random", 1e-3, None, seed=3)}.get(
+                    controller, lambda: make_controller(controller, None, 1e-4))()
+        return cosimstep.simulate(spec.system, 2.0, ctrl,
                                   cosimstep.MasterOptions("gauss-seidel", order), store=db,
                                   reference=spec.reference, **kw)
 
-    run(tmp_path / "whole.db")
-    part = run(tmp_path / "part.db", checkpoint_steps=500, max_calls=3000)
+    whole = run(tmp_path / "whole.db")
+    part = run(tmp_path / "part.db", checkpoint_steps=7, max_calls=whole.calls_total // 2)
     assert part.status == "timed_out"
     resumed = run(tmp_path / "part.db", resume=1)
-    assert resumed.success and resumed.calls == {"bar1": 3000, "bar2": 3000}
-    assert np.array_equal(resumed.times, read_run(tmp_path / "whole.db").times)  # the whole run
+    assert resumed.success and resumed.calls == whole.calls
+    assert resumed.error_estimate == whole.error_estimate
+    assert np.array_equal(resumed.times, whole.times)  # the whole run, not only its end
     _same_store(tmp_path / "whole.db", tmp_path / "part.db")
     assert np.array_equal(read_run(tmp_path / "whole.db").reference,
                           read_run(tmp_path / "part.db").reference)
@@ -130,12 +140,17 @@ class _Unpicklable(cosimstep.OdeSubModel):
 def test_runs_that_cannot_resume_say_why(examples: Path, tmp_path: Path) -> None:
     toml = examples / "double_pendulum_slow.toml"
     db = tmp_path / "r.db"
-    # an adaptive run takes no checkpoints: --resume refuses, naming the reason
-    args = ["run", str(toml), "--until", "1", "--out", str(db), "--max-calls", "20"]
-    assert CliRunner().invoke(main, [*args, "--tol", "1e-4"]).exit_code == 1  # timed_out
-    res = CliRunner().invoke(main, ["run", str(toml), "--until", "1", "--tol", "1e-4",
-                                    "--resume", str(db)])
+    # a multi-rate run takes no checkpoints: --resume refuses, naming the reason
+    args = ["run", str(toml), "--until", "1", "--tol", "1e-4", "--master", "multirate"]
+    assert CliRunner().invoke(main, [*args, "--out", str(db),
+                                     "--max-calls", "20"]).exit_code == 1  # timed_out
+    res = CliRunner().invoke(main, [*args, "--resume", str(db)])
     assert res.exit_code == 2 and "has no checkpoint" in res.output
+    db.unlink()
+    CliRunner().invoke(main, [*args[:-2], "--out", str(db), "--max-calls", "20",
+                              "--checkpoint-steps", "2"])  # pc: checkpoints
+    res = CliRunner().invoke(main, [*args, "--resume", str(db)])
+    assert res.exit_code == 2 and "multirate runs cannot be resumed yet" in res.output
     # a fixed-step run resumed with other options
     db2 = tmp_path / "f.db"
     fixed = ["run", str(toml), "--until", "1", "--step", "1e-3", "--controller", "fixed"]
@@ -143,8 +158,7 @@ def test_runs_that_cannot_resume_say_why(examples: Path, tmp_path: Path) -> None
                               "--checkpoint-steps", "100"])
     res = CliRunner().invoke(main, [*fixed[:-1], "rkf45", "--tol", "1e-4",
                                     "--resume", str(db2)])
-    assert res.exit_code == 2 and "cannot resume run 1" in res.output \
-        and "only fixed-step runs" in res.output
+    assert res.exit_code == 2 and "other settings (controller)" in res.output
     res = CliRunner().invoke(main, [*fixed, "--extrapolation", "0", "--resume", str(db2)])
     assert res.exit_code == 2 and "other settings (master)" in res.output
     res = CliRunner().invoke(main, [*fixed, "--resume", str(db2), "--run", "7"])

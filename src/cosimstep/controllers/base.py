@@ -91,8 +91,8 @@ class Controller(ABC):
 def _plain(value: Any) -> Any:
     if isinstance(value, StepPolicy):
         return {k: v for k, v in vars(value).items() if not k.startswith("_")}
-    if isinstance(value, Controller):
-        return value.describe()
+    if isinstance(value, Controller) or hasattr(value, "describe"):
+        return value.describe()  # a controller's part (its error memory probe): its settings
     return value
 
 

@@ -61,6 +61,11 @@ class ErrorMemory:
         self._span = math.inf
         self._end = math.inf
 
+    def describe(self) -> dict[str, int]:
+        """Its settings, for the results store (what it measured is state, not settings)."""
+        return {"every": self.every, "steps": self.steps, "window": self.window,
+                "per_run": self.per_run}
+
     def reset(self, t0: float, t_end: float) -> None:
         """A run starts: no measurement yet, the first probe after `every` accepted steps."""
         self.measured.clear()
