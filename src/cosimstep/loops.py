@@ -200,10 +200,7 @@ class ControllerLoop(_Loop):
             ctx.restart()
         self.steps.append(h)
         if sink is not None:
-            sink.add_point(self.offset + len(self.steps), t, attempt.y)
-            if self.checkpoints is not None and self.checkpoints.due(len(self.steps)) \
-                    and self.watch is None:
-                self.checkpoints.take(self, len(self.steps))
+            self._store(t, attempt.y)
         if self.bar is not None:
             self.bar.update(h)
         if self.watch is not None and (located or crossed):
@@ -212,6 +209,14 @@ class ControllerLoop(_Loop):
             # tolerance, or an indicator already at 0 when the step began
             late = not located and h > EVENT_TOL * max(1.0, abs(t))
             self.fire(self.t, late, before)  # type: ignore[misc]
+
+    def _store(self, t: float, y: np.ndarray) -> None:
+        """Hand the new point to the store, and a checkpoint when one is due."""
+        assert self.sink is not None
+        n = len(self.steps)
+        self.sink.add_point(self.offset + n, t, y)
+        if self.checkpoints is not None and self.watch is None and self.checkpoints.due(n):
+            self.checkpoints.take(self, n)
 
     def _crossing_inside(self, t: float, h: float, y: np.ndarray) -> bool:
         """Whether an accepted step crossed a state event and was undone to be redone up to the
