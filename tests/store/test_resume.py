@@ -21,37 +21,6 @@ import cosimstep
 from cosimstep.cli import main
 from cosimstep.store import read_run, run_table
 
-FMU_PENDULUM = """
-name = "fmu_pendulum"
-until = 10.0
-[models.bar1]
-type = "fmu"
-recipe = "pendulum_bar1"
-start = { theta = 0.4, theta2 = -0.3 }
-[models.bar2]
-type = "fmu"
-recipe = "pendulum_bar2"
-start = { theta = -0.3, theta1 = 0.4 }
-[[connections]]
-from = "bar1.theta"
-to = "bar2.theta1"
-[[connections]]
-from = "bar1.omega"
-to = "bar2.omega1"
-[[connections]]
-from = "bar2.theta"
-to = "bar1.theta2"
-[[connections]]
-from = "bar2.omega"
-to = "bar1.omega2"
-[master]
-name = "jacobi"
-extrapolation = 2
-[controller]
-name = "fixed"
-step = 1e-4
-"""
-
 
 def _same_store(a: Path, b: Path) -> None:
     x, y = read_run(a), read_run(b)
@@ -71,11 +40,10 @@ def _checkpoint(db: Path) -> tuple[float, int] | None:
         return None  # not created yet
 
 
-def test_a_killed_fmu_run_resumes_bit_for_bit(tmp_path: Path) -> None:
+def test_a_killed_fmu_run_resumes_bit_for_bit(examples: Path, tmp_path: Path) -> None:
     """Two C FMUs (their states serialized by the FMUs), Jacobi with quadratic extrapolation,
     100,000 steps: killed with -9 after a checkpoint, resumed, equal to the uninterrupted run."""
-    system = tmp_path / "fmu.toml"
-    system.write_text(FMU_PENDULUM)
+    system = examples / "fmu" / "double_pendulum_fmu.toml"
     killed, whole = tmp_path / "killed.db", tmp_path / "whole.db"
     proc = subprocess.Popen([sys.executable, "-m", "cosimstep", "run", str(system), "-q",
                              "--out", str(killed), "--checkpoint-every", "0.2"],
@@ -178,19 +146,20 @@ def test_runs_that_cannot_resume_say_why(examples: Path, tmp_path: Path) -> None
 
 
 @pytest.mark.parametrize("delay", [0.3, 0.9])
-def test_ctrl_c_during_an_fmu_run_keeps_every_point_once(tmp_path: Path, delay: float) -> None:
+def test_ctrl_c_during_an_fmu_run_keeps_every_point_once(examples: Path, tmp_path: Path,
+                                                         delay: float) -> None:
     """SIGINT to a run of two C FMUs (unpacking, stepping or writing; benchmarks/interrupts.py
     does this 50 times at random): exit 1, no traceback, status interrupted, points whole,
     no unpacked FMU folder left."""
     import os
 
-    system = tmp_path / "fmu.toml"
-    system.write_text(FMU_PENDULUM.replace("until = 10.0", "until = 30.0"))
+    system = examples / "fmu" / "double_pendulum_fmu.toml"
     db, tmp = tmp_path / "int.db", tmp_path / "tmp"
     tmp.mkdir()
     proc = subprocess.Popen([sys.executable, "-m", "cosimstep", "run", str(system), "-q",
-                             "--out", str(db)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env={**os.environ, "TMPDIR": str(tmp)})
+                             "--until", "30", "--out", str(db)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "TMPDIR": str(tmp)})
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not run_table_has_run(db):
         time.sleep(0.01)
