@@ -82,8 +82,6 @@ class _PolicyController(Controller):
         decay faster or partly cancel (oscillations) make it an overestimate; docs/benchmarks.md
         has the measured ratios.
         """
-        if error.shape != values.shape:
-            return  # an estimate over a subset of the outputs (``defect``): not summable
         fade = math.exp(-h / self.policy.memory)
         self._spent = np.abs(error) if self._spent is None else fade * self._spent + np.abs(error)
         scale = self.policy.scale(values) / self.policy.tol
@@ -133,7 +131,6 @@ class Defect(_PolicyController):
         y = ctx.step(t, h)
         d, mask = ctx.defect()
         cols = np.flatnonzero(mask)
-        names = [ctx.names[j] for j in cols]
         source_error = h * np.abs(d[cols]) / (q + 2)
         calibrate = self._gain is None or (self.calibrate_every > 0
                                            and self._since >= self.calibrate_every)
@@ -150,8 +147,11 @@ class Defect(_PolicyController):
             attempt = self._decide(ctx, token, t, h, y_corrected, local, y_corrected, q + 1,
                                    ctx.names)
         else:
-            error = (self._gain or 1.0) * source_error
-            attempt = self._decide(ctx, token, t, h, y, error, y[cols], q + 1, names)
+            # the estimate lives on the predicted outputs; the others get none (0), so the
+            # decision is the same and the run's global estimate sums one vector throughout
+            error = np.zeros_like(y)
+            error[cols] = (self._gain or 1.0) * source_error
+            attempt = self._decide(ctx, token, t, h, y, error, y, q + 1, ctx.names)
         if attempt.accepted:
             self._since += 1
         return attempt
