@@ -61,6 +61,7 @@ class ConnectionSection(Section):
     to: str
     gain: float = 1.0
     offset: float = 0.0
+    round: bool = False  # into an integer or boolean input: round to the nearest integer
 
 
 class ChangeSection(Section):
@@ -238,7 +239,8 @@ def _build_system(raw: dict[str, Any], header: HeaderSection, changes: Changes, 
         ends = {str(end).partition(".")[0] for end in (sec.from_, sec.to)} if sec else set()
         if sec is not None and not ends & refused:
             system.connect(sec.from_, sec.to, sec.gain, sec.offset,
-                           where=loc(f"connections[{i}] ({sec.from_} -> {sec.to})"))
+                           where=loc(f"connections[{i}] ({sec.from_} -> {sec.to})"),
+                           round=sec.round)
     if raw.get("models"):
         problems.extend(system.problems())
     else:

@@ -168,9 +168,7 @@ class ControllerLoop(_Loop):
         controller, ctx, sink, t = self.controller, self.ctx, self.sink, self.t
         if self.budget:
             self.budget.check(int(self.runner.calls.sum()))
-        h = min(self._h, self._hmax)
-        if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
-            h = landing - t  # land exactly on the event / end time
+        h = self._proposed(t, landing)
         ctx.first_token = None
         try:
             attempt = controller.attempt(ctx, t, h)
@@ -209,6 +207,18 @@ class ControllerLoop(_Loop):
             # tolerance, or an indicator already at 0 when the step began
             late = not located and h > EVENT_TOL * max(1.0, abs(t))
             self.fire(self.t, late, before)  # type: ignore[misc]
+
+    def _proposed(self, t: float, landing: float) -> float:
+        """The next attempt's step: the controller's, landing exactly on ``landing`` (the next
+        event or the end) when it would end within a hair of it — but a located crossing is
+        kept as located, even a hair before ``landing`` (else the step would end past the
+        crossing again, and be located again, forever)."""
+        if t + self._h == self._located and self._located <= landing:
+            return self._h
+        h = min(self._h, self._hmax)
+        if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
+            h = landing - t  # land exactly on the event / end time
+        return h
 
     def _store(self, t: float, y: np.ndarray) -> None:
         """Hand the new point to the store, and a checkpoint when one is due."""

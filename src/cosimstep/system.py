@@ -27,10 +27,26 @@ class Connection:
     gain: float = 1.0
     offset: float = 0.0
     where: str = ""
+    round: bool = False
+    """Declared rounding: a real value may feed an integer or boolean input (rounded to the
+    nearest integer there). Without it such a connection is refused."""
 
     @property
     def label(self) -> str:
         return self.where or f"connection {self.source} -> {self.target}"
+
+
+def _kind_mismatch(out_kind: str, in_kind: str, c: Connection) -> str:
+    """Why a value of ``out_kind`` cannot feed an input of ``in_kind`` unrounded ("" if it
+    can): integers and booleans convert to reals and booleans to integers; the other way, or
+    through a gain or offset, the values need not be whole numbers."""
+    if in_kind == "real" or c.round:
+        return ""
+    scaled = c.gain != 1.0 or c.offset != 0.0
+    if not scaled and (out_kind == in_kind or (out_kind, in_kind) == ("boolean", "integer")):
+        return ""
+    what = f"{out_kind} output" + (" scaled by the connection" if scaled else "")
+    return f"a {what} feeds {in_kind} input '{c.target}'"
 
 
 def split_address(address: str) -> tuple[str, str]:
@@ -83,9 +99,10 @@ class System:
         return self
 
     def connect(self, source: str, target: str, gain: float = 1.0, offset: float = 0.0,
-                where: str = "") -> System:
-        """Connect output ``source`` ("model.port") to input ``target``."""
-        self.connections.append(Connection(source, target, gain, offset, where))
+                where: str = "", *, round: bool = False) -> System:
+        """Connect output ``source`` ("model.port") to input ``target``; ``round`` lets a real
+        value (or a scaled one) feed an integer or boolean input."""
+        self.connections.append(Connection(source, target, gain, offset, where, round))
         return self
 
     # -- validation --------------------------------------------------------------------------
@@ -142,6 +159,10 @@ class System:
         except UnitError as exc:
             yield Problem(c.label, f"unit mismatch: {exc}",
                           "connect ports of compatible units or fix the unit declarations")
+        mismatch = _kind_mismatch(out_port.kind, in_port.kind, c)
+        if mismatch:
+            yield Problem(c.label, mismatch, "connect an output of the same kind, or declare "
+                          "the rounding on the connection (round = true)")
 
     def _port_graph(self) -> dict[str, set[str]]:
         """Dependencies at one instant: an input depends on its source; a feedthrough output on

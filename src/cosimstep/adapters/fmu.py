@@ -92,6 +92,7 @@ class FmuSubModel(FmuBase):
 
     SUPPORTED = (FMI2_CS,)
     CALL_PREFIX = "fmi2"
+    DISCRETE_TYPES = ("Integer", "Boolean", "Enumeration")
 
     def __init__(self, path: str | Path, start: Mapping[str, float] | None = None, *,
                  instance_name: str | None = None,
@@ -191,6 +192,7 @@ class FmuSubModel(FmuBase):
         """
         cls = type(self)
         if (self._component is None or (self._derivatives_set and not derivatives)
+                or self._in_disc or self._out_disc
                 or cls.set_inputs is not FmuSubModel.set_inputs
                 or cls.do_step is not FmuSubModel.do_step
                 or cls.get_outputs is not FmuSubModel.get_outputs):
@@ -211,6 +213,10 @@ class FmuSubModel(FmuBase):
     def set_inputs(self, values: np.ndarray) -> None:
         if self._component is None:
             raise self._not_live()
+        n = self._u.size
+        if self._in_disc:
+            self._set_discrete(values[n:])
+            values = values[:n]
         self._u[:] = values
         status = self._c["fmi2SetReal"](self._component, self._addr["in_vr"], self._u.size,
                                         self._addr["u"])
@@ -224,7 +230,7 @@ class FmuSubModel(FmuBase):
         if order == 0:
             super().set_input_derivatives(derivatives)
         d = np.zeros((order, len(self._in_vr)))
-        given = np.asarray(derivatives, dtype=float)[:order]
+        given = np.asarray(derivatives, dtype=float)[:order, :len(self._in_vr)]  # the reals
         d[: given.shape[0]] = given
         self._send_derivatives(d)
 
@@ -258,7 +264,39 @@ class FmuSubModel(FmuBase):
                                         self._addr["y"])
         if status > 1:
             raise self._failed("fmi2GetReal", status)
+        if self._out_disc:
+            return np.concatenate([self._y, self._get_discrete()])
         return self._y.copy()
+
+    def _set_discrete(self, values: np.ndarray) -> None:
+        """Integer, enumeration and boolean inputs (after the real ones): the master's floats
+        rounded to the nearest integer (a boolean: nonzero)."""
+        fmu = self._fmu
+        ints = [(v.valueReference, round(float(x)))
+                for v, x in zip(self._in_disc, values) if v.type != "Boolean"]
+        bools = [(v.valueReference, bool(round(float(x))))
+                 for v, x in zip(self._in_disc, values) if v.type == "Boolean"]
+        try:
+            if ints:
+                fmu.setInteger(*map(list, zip(*ints)))
+            if bools:
+                fmu.setBoolean(*map(list, zip(*bools)))
+        except Exception as exc:
+            raise self._error(getattr(exc, "function", "fmi2SetInteger"), exc) from None
+
+    def _get_discrete(self) -> np.ndarray:
+        """Integer, enumeration and boolean outputs as floats, in port order."""
+        fmu = self._fmu
+        ints = [v for v in self._out_disc if v.type != "Boolean"]
+        bools = [v for v in self._out_disc if v.type == "Boolean"]
+        try:
+            got = dict(zip(map(id, ints), fmu.getInteger([v.valueReference for v in ints])
+                           if ints else []))
+            got.update(zip(map(id, bools), fmu.getBoolean([v.valueReference for v in bools])
+                           if bools else []))
+        except Exception as exc:
+            raise self._error(getattr(exc, "function", "fmi2GetInteger"), exc) from None
+        return np.array([float(got[id(v)]) for v in self._out_disc])
 
     def get_output_derivatives(self) -> np.ndarray:
         if not self.capabilities.provides_derivatives:

@@ -225,6 +225,7 @@ class FmuBase(SubModel):
 
     SUPPORTED: tuple[tuple[str, str], ...] = ()
     CALL_PREFIX = "fmi"  # "fmi2" or "fmi3", for call names in messages
+    DISCRETE_TYPES: tuple[str, ...] = ()  # non-real variable types exchanged through ports
 
     def __init__(self, path: str | Path, start: Mapping[str, float] | None = None, *,
                  instance_name: str | None = None) -> None:
@@ -238,12 +239,10 @@ class FmuBase(SubModel):
         self.name = instance_name or md.modelName
         by_name = {v.name: v for v in md.modelVariables}
         self.start = self._check_start(dict(start or {}), by_name)
-        self._in_vars = [v for v in md.modelVariables
-                         if v.causality == "input" and v.type in REAL_TYPES]
-        self._out_vars = [v for v in md.modelVariables
-                          if v.causality == "output" and v.type in REAL_TYPES]
-        self.inputs = tuple(self._port(v) for v in self._in_vars)
-        self.outputs = tuple(self._port(v) for v in self._out_vars)
+        self._in_vars, self._in_disc = self._port_variables(md, "input")
+        self._out_vars, self._out_disc = self._port_variables(md, "output")
+        self.inputs = tuple(self._port(v) for v in (*self._in_vars, *self._in_disc))
+        self.outputs = tuple(self._port(v) for v in (*self._out_vars, *self._out_disc))
         self._in_vr = [v.valueReference for v in self._in_vars]
         self._out_vr = [v.valueReference for v in self._out_vars]
         self._fmu: Any = None
@@ -254,6 +253,15 @@ class FmuBase(SubModel):
         self._log: deque[str] = deque(maxlen=20)
 
     # -- construction helpers ------------------------------------------------------------------
+    def _port_variables(self, md: ModelDescription,
+                        causality: str) -> tuple[list[ModelVariable], list[ModelVariable]]:
+        """The real variables of a causality, and the integer, boolean and enumeration ones
+        the adapter exchanges too (:attr:`DISCRETE_TYPES`; their ports come after the real
+        ones, in the model description's order)."""
+        of = [v for v in md.modelVariables if v.causality == causality]
+        return ([v for v in of if v.type in REAL_TYPES],
+                [v for v in of if v.type in self.DISCRETE_TYPES and not v.dimensions])
+
     def _check_start(self, start: dict[str, Any],
                      by_name: Mapping[str, ModelVariable]) -> dict[str, tuple[ModelVariable, Any]]:
         problems = []
@@ -275,6 +283,11 @@ class FmuBase(SubModel):
 
     def _port(self, v: ModelVariable) -> Port:
         value = self.start[v.name][1] if v.name in self.start else v.start
+        if v.type not in REAL_TYPES:
+            # integers, booleans, enumerations: discrete by nature, dimensionless
+            kind = "boolean" if v.type == "Boolean" else "integer"
+            start = None if value is None else float(_as_number(value))
+            return Port(v.name, "1", start, v.description or "", discrete=True, kind=kind)
         unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or "1"
         # a discrete output changes only at the FMU's own events: the master holds it and
         # lands on its changes (Port.discrete)
@@ -283,13 +296,14 @@ class FmuBase(SubModel):
 
     def _feedthrough(self) -> dict[str, tuple[str, ...]]:
         """Per output, the inputs it depends on at the same instant (ModelStructure/Outputs)."""
-        inputs = {id(v) for v in self._in_vars}
+        in_vars = [*self._in_vars, *self._in_disc]
+        inputs = {id(v) for v in in_vars}
         declared = {id(u.variable): u for u in self.model_description.outputs}
         result: dict[str, tuple[str, ...]] = {}
-        for v in self._out_vars:
+        for v in (*self._out_vars, *self._out_disc):
             unknown = declared.get(id(v))
             if unknown is None or unknown.dependencies is None:
-                deps = tuple(i.name for i in self._in_vars)  # undeclared: depends on all
+                deps = tuple(i.name for i in in_vars)  # undeclared: depends on all
             else:
                 deps = tuple(d.name for d in unknown.dependencies if id(d) in inputs)
             result[v.name] = deps
@@ -538,6 +552,17 @@ def fmu_logging() -> bool:
 def _echo(name: str, line: str) -> None:
     if _LOGGING[0]:
         print(f"{name}: {line}", file=sys.stderr, flush=True)
+
+
+def _as_number(value: Any) -> int:
+    """A start value of an integer, boolean or enumeration variable as a number (FMPy gives
+    ``"true"``/``"false"`` or numbers as text for some)."""
+    if isinstance(value, str):
+        text = value.strip().lower()
+        if text in ("true", "false"):
+            return int(text == "true")
+        return int(float(text))
+    return int(value)
 
 
 def _log_line(status: int, message: bytes | str | None) -> str:

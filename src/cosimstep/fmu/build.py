@@ -166,6 +166,12 @@ RECIPES: dict[str, Recipe] = {
     # FMI 2.0 model exchange with a state event and an optional time event
     "bouncing_ball": Recipe(C_DIR / "bouncing_ball.xml", (C_DIR / "bouncing_ball.c",),
                             _ME_HEADERS),
+    # non-real variables: an integer stair with time events and a boolean output, no inputs and
+    # no real outputs, a string parameter; and an integer/boolean feedthrough with a real output
+    "stair": Recipe(C_DIR / "stair.xml", (C_DIR / "discrete_io.c",), (C_DIR / "fmi2.h",),
+                    {"KIND": "1"}),
+    "echo": Recipe(C_DIR / "echo.xml", (C_DIR / "discrete_io.c",), (C_DIR / "fmi2.h",),
+                   {"KIND": "2"}),
 }
 
 
