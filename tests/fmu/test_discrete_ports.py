@@ -143,3 +143,27 @@ step = 0.01
     (tmp_path / "ok.toml").write_text(bad.replace('to = "ec.b"', 'to = "ec.b"\nround = true'))
     res = CliRunner().invoke(main, ["validate", str(tmp_path / "ok.toml")])
     assert res.exit_code == 0, res.output
+
+
+def test_string_and_boolean_parameters_from_the_system_file(tmp_path: Path) -> None:
+    """A String parameter takes a TOML string (and refuses a number, exit 2); the FMU holds
+    what was set (read back with fmi2GetString)."""
+    from click.testing import CliRunner
+
+    from cosimstep.cli import main
+
+    text = ('until = 1.0\n[models.st]\ntype = "fmu"\nrecipe = "stair"\n'
+            'parameters = { period = 0.25, label = "a name" }\n'
+            '[controller]\nname = "fixed"\nstep = 0.1\n')
+    (tmp_path / "s.toml").write_text(text)
+    model = cosimstep.load_system(tmp_path / "s.toml").system.models["st"]
+    model.initialize(0.0)
+    try:
+        assert model._fmu.getString([0]) == ["a name"]
+        model.do_step(0.0, 0.3)
+        assert list(model.get_outputs()) == [2.0, 0.0]  # period 0.25 applied
+    finally:
+        model.terminate()
+    (tmp_path / "bad.toml").write_text(text.replace('"a name"', "3"))
+    res = CliRunner().invoke(main, ["validate", str(tmp_path / "bad.toml")])
+    assert res.exit_code == 2 and "'label' is a String, got 3" in res.output

@@ -41,7 +41,7 @@ from cosimstep.submodel import Port, SubModel
 STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
 REAL_TYPES = ("Real", "Float64", "Float32")  # exchanged through ports
 _SETTABLE_TYPES = (*REAL_TYPES, "Integer", "Enumeration", "Boolean", "Int8", "UInt8", "Int16",
-                   "UInt16", "Int32", "UInt32", "Int64", "UInt64")
+                   "UInt16", "Int32", "UInt32", "Int64", "UInt64", "String")
 _SETTABLE_BEFORE_INIT = ("exact", "approx")
 
 __all__ = ["FMI2_CS", "FMI2_ME", "FMI3_CS", "STATUS", "SUPPORTED", "FmuBase", "FmuError",
@@ -554,6 +554,11 @@ def _echo(name: str, line: str) -> None:
         print(f"{name}: {line}", file=sys.stderr, flush=True)
 
 
+def _as_bool(value: Any) -> bool:
+    """A boolean start value: ``true``/``false`` (TOML), or a number (nonzero is true)."""
+    return bool(_as_number(value)) if isinstance(value, str) else bool(value)
+
+
 def _as_number(value: Any) -> int:
     """A start value of an integer, boolean or enumeration variable as a number (FMPy gives
     ``"true"``/``"false"`` or numbers as text for some)."""
@@ -576,7 +581,9 @@ def setter_name(v: ModelVariable, version: str) -> tuple[str, type]:
     if v.type in ("Real", "Float64", "Float32"):
         return ("setReal" if version == "2.0" else f"set{v.type}"), float
     if v.type == "Boolean":
-        return "setBoolean", bool
+        return "setBoolean", _as_bool
+    if v.type == "String":
+        return "setString", str
     if version == "2.0":
         return "setInteger", int
     return f"set{'Int64' if v.type == 'Enumeration' else v.type}", int

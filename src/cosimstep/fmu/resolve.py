@@ -176,6 +176,13 @@ def _override_problem(model_name: str, by_name: Mapping[str, ModelVariable], key
     if kind == "parameters" and v.causality != "parameter":
         return Problem(f"{where}.{key}", f"'{var}' has causality {v.causality}, not parameter",
                        "set its start value under `start` instead")
+    if v.type == "String":
+        if not isinstance(value, str):
+            return Problem(f"{where}.{key}", f"'{var}' is a String, got {value!r}",
+                           'write it in quotes, e.g. "text"')
+        return None
+    if v.type == "Boolean" and isinstance(value, bool):
+        return None
     if isinstance(value, str) or (isinstance(value, float) and not math.isfinite(value)):
         return Problem(f"{where}.{key}", f"must be a finite number, got {value!r}",
                        "write a number")
