@@ -50,5 +50,14 @@ class SubModelError(RuntimeError):
         return isinstance(self.__cause__, TimeoutError) or "TimeoutError" in self.reason
 
 
+class EndOfSimulation(Exception):
+    """A sub-model asked to end the simulation (an FMU's ``terminateSimulation``): the run
+    ends ``ok`` at the last point every sub-model completed, saying who ended it and why."""
+
+    def __init__(self, model: str, reason: str) -> None:
+        self.model, self.reason = model, reason
+        super().__init__(f"sub-model '{model}' ended the simulation: {reason}")
+
+
 class StepSizeError(RuntimeError):
     """A step controller cannot continue (for example the step fell below its minimum)."""

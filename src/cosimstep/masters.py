@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from cosimstep.errors import SubModelError
+from cosimstep.errors import EndOfSimulation, SubModelError
 from cosimstep.extrapolation import (
     evaluate,
     midstep_weights,
@@ -451,6 +451,8 @@ class Master:
             return fn(*args)
         except SubModelError:
             raise
+        except EndOfSimulation as exc:  # named as in the system
+            raise EndOfSimulation(self.system.names[k], exc.reason) from None
         except Exception as exc:
             raise SubModelError(self.system.names[k], t,
                                 f"{type(exc).__name__}: {exc}", h) from exc
@@ -572,6 +574,8 @@ class _HeldKernel:
     def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
         if self.master._watch is not None:
             self.master._watch.started = 0.0
+        if isinstance(exc, EndOfSimulation):
+            raise EndOfSimulation(self.names[k], exc.reason) from None
         raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc
 
 
@@ -808,4 +812,6 @@ class _ExtrapolatingKernel:
     def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
         if self.master._watch is not None:
             self.master._watch.started = 0.0
+        if isinstance(exc, EndOfSimulation):
+            raise EndOfSimulation(self.names[k], exc.reason) from None
         raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc

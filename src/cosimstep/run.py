@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from cosimstep.controllers import Controller, Fixed
-from cosimstep.errors import StepSizeError, SubModelError
+from cosimstep.errors import EndOfSimulation, StepSizeError, SubModelError
 from cosimstep.events import MAX_EVENTS, DiscreteEventModel, Event
 from cosimstep.kernel import Actor, Budget, BudgetExceeded, Kernel
 from cosimstep.loops import ControllerLoop, FixedLoop
@@ -552,6 +552,8 @@ class Run:
                         master._watch = None
         except BudgetExceeded as exc:
             return "timed_out", f"at t = {scheme.t:.9g}: {exc}", None
+        except EndOfSimulation as exc:
+            return "ok", f"ended at t = {scheme.t:.9g}: {exc}", None
         except SubModelError as exc:
             if exc.hung:
                 scheme.hung.add(exc.model)

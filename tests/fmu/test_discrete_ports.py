@@ -167,3 +167,19 @@ def test_string_and_boolean_parameters_from_the_system_file(tmp_path: Path) -> N
     (tmp_path / "bad.toml").write_text(text.replace('"a name"', "3"))
     res = CliRunner().invoke(main, ["validate", str(tmp_path / "bad.toml")])
     assert res.exit_code == 2 and "'label' is a String, got 3" in res.output
+
+
+def test_an_fmu_that_ends_the_simulation_ends_the_run_ok(fmus: dict[str, Path]) -> None:
+    """FMI 2.0 terminateSimulation: the step returns fmi2Discard and fmi2GetBooleanStatus
+    (fmi2Terminated) says true. The run ends ok at the last point every sub-model completed,
+    naming the FMU; FMPy's simulate_fmu stops there too."""
+    system = cosimstep.System()
+    system.add("st", FmuSubModel(fmus["stair"], {"period": 0.5, "stop_at": 4}))
+    result = cosimstep.simulate(system, 10.0, cosimstep.Fixed(0.1))
+    assert result.status == "ok" and result.success
+    assert "'st' ended the simulation: terminateSimulation" in result.message
+    assert result.t_end == pytest.approx(1.4)  # the counter reaches 4 at t = 1.5
+    assert result["st.counter"][-1] == 3.0
+    theirs = fmpy.simulate_fmu(str(fmus["stair"]), stop_time=10.0, step_size=0.1,
+                               output_interval=0.1, start_values={"period": 0.5, "stop_at": 4})
+    assert theirs["time"][-1] < 2.0  # FMPy ends there as well (keeping the FMU's last value)

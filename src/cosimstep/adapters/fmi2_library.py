@@ -43,6 +43,7 @@ __all__ = ["REQUIRED", "SIGNATURES", "Fmi2Slave"]
 _WARNING = 1  # fmi2Warning: the highest status that is not a failure
 _TRUE, _FALSE = 1, 0
 _CO_SIMULATION = 1  # fmi2Type
+_TERMINATED = 3  # fmi2StatusKind fmi2Terminated
 
 _vp, _size = c_void_p, c_size_t
 _ARRAY_CALL = (_vp, _vp, _size, _vp)  # component, value references, count, values
@@ -72,6 +73,7 @@ SIGNATURES: dict[str, tuple[Any, tuple[Any, ...]]] = {
     "fmi2SetRealInputDerivatives": (c_int, (_vp, _vp, _size, _vp, _vp)),
     "fmi2GetRealOutputDerivatives": (c_int, (_vp, _vp, _size, _vp, _vp)),
     "fmi2DoStep": (c_int, (_vp, c_double, c_double, c_int)),
+    "fmi2GetBooleanStatus": (c_int, (_vp, c_int, _vp)),  # component, kind, fmi2Boolean*
 }
 """Prototypes of the FMI 2.0 functions cosimstep calls (a subset of the standard's)."""
 
@@ -146,6 +148,17 @@ class Fmi2Slave:
             checked = function
         setattr(self, name, checked)
         return checked
+
+    def terminated(self) -> bool:
+        """Whether the slave asks to end the simulation (``fmi2GetBooleanStatus`` with
+        ``fmi2Terminated``, asked after ``fmi2DoStep`` returned ``fmi2Discard``); ``False``
+        when it cannot tell."""
+        value = c_int(0)
+        try:
+            self.fmi2GetBooleanStatus(self.component, _TERMINATED, byref(value))
+        except (AttributeError, FMICallException):
+            return False
+        return bool(value.value)
 
     def freeLibrary(self) -> None:
         """Unload the shared library (after :meth:`freeInstance`, or if there is no instance)."""

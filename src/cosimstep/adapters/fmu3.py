@@ -21,6 +21,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi3 import FMU3Slave
 
 from cosimstep.adapters.fmu_base import FMI3_CS, FmuBase, fmu_logging, set_values
+from cosimstep.errors import EndOfSimulation
 from cosimstep.submodel import Capabilities
 
 __all__ = ["Fmu3SubModel"]
@@ -43,6 +44,8 @@ class Fmu3SubModel(FmuBase):
     """
 
     SUPPORTED = (FMI3_CS,)
+    DISCRETE_TYPES = ("Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64",
+                      "Boolean", "Enumeration")
     CALL_PREFIX = "fmi3"
 
     def __init__(self, path: str | Path, start: Mapping[str, float] | None = None, *,
@@ -82,6 +85,16 @@ class Fmu3SubModel(FmuBase):
             raise self._error(call, exc) from None
 
     def set_inputs(self, values: np.ndarray) -> None:
+        n = len(self._in_vars)
+        if self._in_disc:  # integers and booleans: the master's floats, rounded
+            try:
+                set_values(self._live(), [(v, round(float(x))) for v, x in
+                                          zip(self._in_disc, values[n:], strict=True)], "3.0")
+            except FMICallException as exc:
+                raise self._error(exc.function, exc) from None
+            values = values[:n]
+        if not n:
+            return
         if self._float32_in:  # mixed precisions: each input with its own setter
             set_values(self._live(), list(zip(self._in_vars, values, strict=True)), "3.0")
             return
@@ -89,16 +102,24 @@ class Fmu3SubModel(FmuBase):
 
     def do_step(self, t: float, h: float) -> None:
         _, terminate, early, last = self._call("doStep", t, h)
-        if terminate or early:
-            raise self._error(f"fmi3DoStep from t = {t} over {h} "
-                              + ("asked to terminate the simulation" if terminate else
-                                 f"returned early at t = {last}"))
+        if terminate:
+            raise EndOfSimulation(self.name, f"terminateSimulation in the step from t = {t:.9g}")
+        if early:
+            raise self._error(f"fmi3DoStep from t = {t} over {h} returned early at t = {last}")
 
     def get_outputs(self) -> np.ndarray:
         if self._float32_out:
-            return np.array([self._call(f"get{v.type}", [v.valueReference])[0]
-                             for v in self._out_vars])
-        return np.array(self._call("getFloat64", self._out_vr))
+            reals = np.array([self._call(f"get{v.type}", [v.valueReference])[0]
+                              for v in self._out_vars])
+        elif self._out_vr:
+            reals = np.array(self._call("getFloat64", self._out_vr), dtype=float)
+        else:
+            reals = np.zeros(0)  # FMPy cannot get zero values
+        if not self._out_disc:
+            return reals
+        ints = [float(self._call(f"get{'Int64' if v.type == 'Enumeration' else v.type}",
+                                 [v.valueReference])[0]) for v in self._out_disc]
+        return np.concatenate([reals, ints])
 
     def get_output_derivatives(self) -> np.ndarray:
         if not self.capabilities.provides_derivatives:

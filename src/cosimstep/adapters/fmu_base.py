@@ -36,6 +36,7 @@ from fmpy.fmi2 import (
 from fmpy.model_description import ModelDescription, ModelVariable, ValidationError
 
 from cosimstep.archive import escapes, new_folder, size_problems
+from cosimstep.errors import EndOfSimulation
 from cosimstep.submodel import Port, SubModel
 
 STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
@@ -344,9 +345,17 @@ class FmuBase(SubModel):
             return self._failed(exc.function, exc.status)
         return self._report(call if exc is None else f"{call} failed: {exc}")
 
-    def _failed(self, function: str, status: int) -> FmuError:
-        """The error for an FMI call that returned ``status`` (> warning)."""
+    def _failed(self, function: str, status: int) -> Exception:
+        """The error for an FMI call that returned ``status`` (> warning) — or, for a step
+        the FMU discarded because it ends the simulation (FMI 2.0 ``fmi2Terminated``), the
+        :class:`~cosimstep.errors.EndOfSimulation` that ends the run normally."""
         label = STATUS[status] if 0 <= status < len(STATUS) else str(status)
+        if (function.endswith("DoStep") and label == "discard" and self._fmu is not None
+                and getattr(self._fmu, "terminated", lambda: False)()):
+            logged = "; ".join(self._log)
+            self._log.clear()
+            return EndOfSimulation(self.name, "terminateSimulation during a step"
+                                   + (f" (FMU log: {logged})" if logged else ""))
         return self._report(f"{function} returned {label}")
 
     def _report(self, what: str) -> FmuError:

@@ -5,7 +5,9 @@
  *   steps up by one at every multiple of the Real parameter `period` (a time event inside the
  *   FMU: the value at the end of a step that ends on the event is already the new one); Boolean
  *   output `odd` is true while the counter is odd; String parameter `label` is only kept (it can
- *   be set and read back, fmi2GetString).
+ *   be set and read back, fmi2GetString). With Integer parameter `stop_at` > 0, the step in
+ *   which the counter reaches it returns fmi2Discard and fmi2GetBooleanStatus(fmi2Terminated)
+ *   says true: the FMU ends the simulation (FMI 2.0 terminateSimulation).
  * -DKIND=2, "echo": Integer input `n` and Boolean input `b`, passed straight to Integer output
  *   `n_out` and Boolean output `b_out` (direct feedthrough), and Real output `x`, the integral of
  *   the integer input (exact for an input held over each step: x += n h).
@@ -36,7 +38,7 @@
 /* Value references, as in the model descriptions: reals, integers, booleans, strings each
  * counted from 0 (FMI 2.0 value references are per type). */
 enum { R_PERIOD = 0, R_X = 1, N_REAL };
-enum { I_COUNTER = 0, I_N = 1, I_N_OUT = 2, N_INT };
+enum { I_COUNTER = 0, I_N = 1, I_N_OUT = 2, I_STOP = 3, N_INT };
 enum { B_ODD = 0, B_B = 1, B_B_OUT = 2, N_BOOL };
 enum { S_LABEL = 0, N_STRING };
 
@@ -46,6 +48,7 @@ typedef struct {
     int i[N_INT];
     int b[N_BOOL];
     char label[LABEL_SIZE];
+    int terminated; /* the stair reached `stop_at`: it asks to end the simulation */
 } State;
 
 typedef struct {
@@ -329,6 +332,12 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
 #endif
     inst->s.time = t;
     stair(&inst->s, t);
+#if KIND == 1
+    if (inst->s.i[I_STOP] > 0 && inst->s.i[I_COUNTER] >= inst->s.i[I_STOP]) {
+        inst->s.terminated = 1;
+        return fmi2Discard;
+    }
+#endif
     return fmi2OK;
 }
 
@@ -352,8 +361,9 @@ fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Int
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
-    (void)c, (void)s, (void)value;
-    return fmi2Discard;
+    if (s != fmi2Terminated) return fmi2Discard;
+    *value = as_instance(c)->s.terminated ? fmi2True : fmi2False;
+    return fmi2OK;
 }
 
 fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
