@@ -20,7 +20,7 @@ import tomllib
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import Field
 
@@ -54,6 +54,9 @@ class ModelSection(Section):
                              "the system file")
     recipe: str | None = Field(None, description="for type = 'fmu': a built-in FMU built from "
                                "the package's C sources on first use (cosimstep.fmu.build)")
+    interface: Literal["co-simulation", "model-exchange"] | None = Field(
+        None, description="for type = 'fmu' offering both: which one runs (default: "
+        "co-simulation)")
 
 
 class ConnectionSection(Section):
@@ -322,7 +325,7 @@ def _fmu_model(name: str, sec: ModelSection, header: HeaderSection, base_dir: Pa
     overrides.update({f"start.{k}": v for k, v in sec.start.items()})
     # `solver` is for model-exchange FMUs (integrated by cosimstep); fmu_submodel checks it
     return fmu_submodel(name, fmu, overrides, where, problems, shared=header.parameters,
-                        used=used, solver=sec.solver)
+                        used=used, solver=sec.solver, interface=sec.interface)
 
 
 def _event_model(sec: ModelSection, where: str, problems: list[Problem]) -> SubModel | None:

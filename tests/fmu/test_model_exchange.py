@@ -309,3 +309,20 @@ def test_a_discrete_fmu_output_is_an_event_the_master_lands_on(ball: Path, maste
     assert np.max(np.abs(np.array(times) - expected)) < 1e-11
     integral = sum(2.0 - t for t in expected)
     assert result["count.x"][-1] == pytest.approx(integral, abs=1e-10)
+
+
+def test_the_interface_is_chosen_in_the_system_file(tmp_path: Path) -> None:
+    """`interface = "model-exchange"` runs the model-exchange-only ball; asking it for
+    co-simulation is a configuration problem naming the key (exit 2)."""
+    from click.testing import CliRunner
+
+    from cosimstep.cli import main
+
+    text = ('until = 0.5\n[models.ball]\ntype = "fmu"\nrecipe = "bouncing_ball"\n'
+            'interface = "model-exchange"\n[controller]\nname = "fixed"\nstep = 0.01\n')
+    (tmp_path / "me.toml").write_text(text)
+    assert cosimstep.load_system(tmp_path / "me.toml").system.models["ball"].kind == "ME"
+    (tmp_path / "cs.toml").write_text(text.replace("model-exchange", "co-simulation"))
+    res = CliRunner().invoke(main, ["validate", str(tmp_path / "cs.toml")])
+    assert res.exit_code == 2 and "models.ball.interface" in res.output
+    assert "choose an interface the FMU offers" in res.output

@@ -63,7 +63,8 @@ def resolve_fmu(path: str | None, recipe: str | None, base_dir: Path, where: str
 def fmu_submodel(name: str, fmu: Path, overrides: Mapping[str, Any], where: str,
                  problems: list[Problem], *, shared: Mapping[str, float] | None = None,
                  used: set[str] | None = None,
-                 solver: Mapping[str, Any] | None = None) -> SubModel | None:
+                 solver: Mapping[str, Any] | None = None,
+                 interface: str | None = None) -> SubModel | None:
     """Create the sub-model of an FMU (:func:`~cosimstep.adapters.fmu_open.open_fmu`: FMI 2.0 or
     3.0 co-simulation, or FMI 2.0 model exchange integrated by cosimstep) with checked overrides.
 
@@ -79,10 +80,14 @@ def fmu_submodel(name: str, fmu: Path, overrides: Mapping[str, Any], where: str,
     solver:
         ``solve_ivp`` settings of a model-exchange FMU (``method``, ``rtol``, ``atol``); a
         problem for a co-simulation FMU, which brings its own solver.
+    interface:
+        ``"co-simulation"`` or ``"model-exchange"`` for an FMU that offers both (default:
+        co-simulation); a problem if the FMU does not offer it.
     """
     from cosimstep.adapters.fmu_open import open_fmu
 
-    md = _checked_description(fmu, solver, where, problems)
+    kind = {"co-simulation": "CS", "model-exchange": "ME", None: None}[interface]
+    md = _checked_description(fmu, solver, where, problems, kind)
     if md is None:
         return None
     by_name = {v.name: v for v in md.modelVariables}
@@ -94,7 +99,7 @@ def fmu_submodel(name: str, fmu: Path, overrides: Mapping[str, Any], where: str,
         if solver is None:
             return None
     try:
-        return open_fmu(fmu, values, instance_name=name, solver=solver)
+        return open_fmu(fmu, values, instance_name=name, solver=solver, kind=kind)
     except ValueError as exc:
         problems.append(Problem(where, str(exc), "set only parameters and start values the "
                                 "FMU allows to be set"))
@@ -116,19 +121,25 @@ def _me_solver(solver: Mapping[str, Any], where: str,
 
 
 def _checked_description(fmu: Path, solver: Mapping[str, Any] | None, where: str,
-                         problems: list[Problem]) -> ModelDescription | None:
-    """The FMU's model description if cosimstep can run it (with ``solver`` only for model
-    exchange); ``None`` after recording a problem."""
+                         problems: list[Problem],
+                         kind: str | None = None) -> ModelDescription | None:
+    """The FMU's model description if cosimstep can run it (through interface ``kind``,
+    ``"CS"`` or ``"ME"``, if given; with ``solver`` only for model exchange); ``None`` after
+    recording a problem."""
     from cosimstep.adapters.fmu import FMI2_ME, SUPPORTED, check_fmu, fmu_interface
 
+    wanted = tuple(p for p in SUPPORTED if kind is None or p[1] == kind)
     try:
-        md = check_fmu(fmu, SUPPORTED)
+        md = check_fmu(fmu, wanted)
     except ValueError as exc:
-        problems.append(Problem(where, str(exc), "use an FMI 2.0 or 3.0 co-simulation or FMI 2.0 "
-                                "model-exchange FMU built for this platform (`cosimstep info "
-                                "FILE.fmu` shows what it is)"))
+        fix = ("use an FMI 2.0 or 3.0 co-simulation or FMI 2.0 model-exchange FMU built for "
+               "this platform (`cosimstep info FILE.fmu` shows what it is)")
+        if kind is not None:
+            fix = "choose an interface the FMU offers (`cosimstep info FILE.fmu`), or drop " \
+                "`interface`"
+        problems.append(Problem(f"{where}.interface" if kind else where, str(exc), fix))
         return None
-    if solver is not None and fmu_interface(md) != FMI2_ME:
+    if solver is not None and fmu_interface(md, wanted) != FMI2_ME:
         problems.append(Problem(f"{where}.solver", "only a model-exchange FMU takes a solver",
                                 "remove it (a co-simulation FMU brings its own solver)"))
         return None
