@@ -75,14 +75,16 @@ def run_one(path: Path, kind: str) -> dict:
     t_theirs = np.asarray(theirs["time"], dtype=float)
     for name in result.names:
         port = name.split(".", 1)[1]
-        if port not in (theirs.dtype.names or ()):
+        base, _, index = port.partition("[")
+        if base not in (theirs.dtype.names or ()):
             continue
+        column = theirs[base] if not index else theirs[base][:, int(index[:-1]) - 1]
         # FMPy's rows at our points (the last row at a time: after an event there)
         at = np.searchsorted(t_theirs, result.times + 1e-9, side="right") - 1
         ok = (at >= 0) & (np.abs(t_theirs[np.maximum(at, 0)] - result.times) < 1e-9)
         if not ok.any():
             continue
-        values = np.asarray(theirs[port], dtype=float)[at[ok]]
+        values = np.asarray(column, dtype=float)[at[ok]]
         row["diff"][port] = float(np.max(np.abs(result[name][ok] - values)))
     return row
 

@@ -183,3 +183,16 @@ def test_an_fmu_that_ends_the_simulation_ends_the_run_ok(fmus: dict[str, Path]) 
     theirs = fmpy.simulate_fmu(str(fmus["stair"]), stop_time=10.0, step_size=0.1,
                                output_interval=0.1, start_values={"period": 0.5, "stop_at": 4})
     assert theirs["time"][-1] < 2.0  # FMPy ends there as well (keeping the FMU's last value)
+
+
+def test_array_values_are_flattened_row_major() -> None:
+    """FMI 3.0 array start values and TOML arrays, as the adapter hands them to the FMU (its
+    element ports ``name[1]`` … follow the same order). Measured end to end on the FMI
+    Reference StateSpace (A, x0 set from TOML): outputs y[1..3] equal to FMPy's (0.0)."""
+    from cosimstep.adapters.fmu_base import array_values
+
+    assert array_values("1 0 0 0 1 0 0 0 1") == [1, 0, 0, 0, 1, 0, 0, 0, 1]
+    assert array_values([[0.0, 1.0], [2.0, 3.0]]) == [0.0, 1.0, 2.0, 3.0]
+    assert array_values(0.5, 3) == [0.5, 0.5, 0.5]
+    with pytest.raises(ValueError, match="2 values for an array of 3"):
+        array_values([1.0, 2.0], 3)

@@ -47,6 +47,7 @@ class Fmu3SubModel(FmuBase):
     DISCRETE_TYPES = ("Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64",
                       "Boolean", "Enumeration")
     CALL_PREFIX = "fmi3"
+    ARRAYS = True
 
     def __init__(self, path: str | Path, start: Mapping[str, float] | None = None, *,
                  instance_name: str | None = None, tolerance: float | None = None) -> None:
@@ -55,9 +56,15 @@ class Fmu3SubModel(FmuBase):
         cs = self.interface
         self._float32_in = any(v.type == "Float32" for v in self._in_vars)
         self._float32_out = any(v.type == "Float32" for v in self._out_vars)
+        # values per real input and output (arrays: their element counts)
+        self._n_in = sum(self.size(v) for v in self._in_vars)
+        self._n_out = sum(self.size(v) for v in self._out_vars)
+        arrays = any(v.dimensions for v in (*self._in_vars, *self._out_vars))
+        if arrays and (self._float32_in or self._float32_out):
+            raise ValueError(f"FMU {self.path}: Float32 array ports are not supported yet")
         self.capabilities = Capabilities(
             can_save_state=bool(cs.canGetAndSetFMUstate),
-            provides_derivatives=int(cs.maxOutputDerivativeOrder or 0) >= 1,
+            provides_derivatives=int(cs.maxOutputDerivativeOrder or 0) >= 1 and not arrays,
             max_input_derivative_order=0,
             feedthrough=self._feedthrough(),
         )
@@ -85,7 +92,7 @@ class Fmu3SubModel(FmuBase):
             raise self._error(call, exc) from None
 
     def set_inputs(self, values: np.ndarray) -> None:
-        n = len(self._in_vars)
+        n = self._n_in
         if self._in_disc:  # integers and booleans: the master's floats, rounded
             try:
                 set_values(self._live(), [(v, round(float(x))) for v, x in
@@ -112,7 +119,7 @@ class Fmu3SubModel(FmuBase):
             reals = np.array([self._call(f"get{v.type}", [v.valueReference])[0]
                               for v in self._out_vars])
         elif self._out_vr:
-            reals = np.array(self._call("getFloat64", self._out_vr), dtype=float)
+            reals = np.array(self._call("getFloat64", self._out_vr, self._n_out), dtype=float)
         else:
             reals = np.zeros(0)  # FMPy cannot get zero values
         if not self._out_disc:

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import fmpy
+import numpy as np
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (
     fmi2CallbackAllocateMemoryTYPE,
@@ -227,6 +228,7 @@ class FmuBase(SubModel):
     SUPPORTED: tuple[tuple[str, str], ...] = ()
     CALL_PREFIX = "fmi"  # "fmi2" or "fmi3", for call names in messages
     DISCRETE_TYPES: tuple[str, ...] = ()  # non-real variable types exchanged through ports
+    ARRAYS = False  # array variables (FMI 3.0) as one port per element, ``name[i]``
 
     def __init__(self, path: str | Path, start: Mapping[str, float] | None = None, *,
                  instance_name: str | None = None) -> None:
@@ -242,8 +244,9 @@ class FmuBase(SubModel):
         self.start = self._check_start(dict(start or {}), by_name)
         self._in_vars, self._in_disc = self._port_variables(md, "input")
         self._out_vars, self._out_disc = self._port_variables(md, "output")
-        self.inputs = tuple(self._port(v) for v in (*self._in_vars, *self._in_disc))
-        self.outputs = tuple(self._port(v) for v in (*self._out_vars, *self._out_disc))
+        self.inputs = tuple(p for v in (*self._in_vars, *self._in_disc) for p in self._ports(v))
+        self.outputs = tuple(p for v in (*self._out_vars, *self._out_disc)
+                             for p in self._ports(v))
         self._in_vr = [v.valueReference for v in self._in_vars]
         self._out_vr = [v.valueReference for v in self._out_vars]
         self._fmu: Any = None
@@ -260,8 +263,21 @@ class FmuBase(SubModel):
         the adapter exchanges too (:attr:`DISCRETE_TYPES`; their ports come after the real
         ones, in the model description's order)."""
         of = [v for v in md.modelVariables if v.causality == causality]
-        return ([v for v in of if v.type in REAL_TYPES],
+        return ([v for v in of if v.type in REAL_TYPES and (self.ARRAYS or not v.dimensions)],
                 [v for v in of if v.type in self.DISCRETE_TYPES and not v.dimensions])
+
+    def size(self, v: ModelVariable) -> int:
+        """How many values variable ``v`` holds: 1, or its array's element count (dimensions
+        fixed, or given by structural parameters: their start values, or the values set)."""
+        n = 1
+        for d in v.dimensions:
+            if d.start is not None:
+                n *= int(d.start)
+            else:
+                ref = d.variable
+                value = self.start[ref.name][1] if ref.name in self.start else ref.start
+                n *= int(_as_number(value))
+        return n
 
     def _check_start(self, start: dict[str, Any],
                      by_name: Mapping[str, ModelVariable]) -> dict[str, tuple[ModelVariable, Any]]:
@@ -274,13 +290,25 @@ class FmuBase(SubModel):
                     v.causality in ("output", "calculatedParameter")
                     and v.initial not in _SETTABLE_BEFORE_INIT):
                 problems.append(f"'{name}' ({v.causality}, {v.variability}) cannot be set")
-            elif v.type not in _SETTABLE_TYPES or v.dimensions:
+            elif v.type not in _SETTABLE_TYPES or (v.dimensions and not self.ARRAYS):
                 problems.append(f"'{name}' is of type {v.type}"
                                 f"{' (an array)' if v.dimensions else ''}, which cannot be set "
                                 "here")
         if problems:
             raise ValueError(f"`start` for FMU {self.path}: {'; '.join(problems)}")
         return {name: (by_name[name], value) for name, value in start.items()}
+
+    def _ports(self, v: ModelVariable) -> list[Port]:
+        """The port of a scalar variable; one per element of an array, ``name[1]`` …
+        ``name[n]`` in the FMU's (row-major) order, each with its start value."""
+        if not v.dimensions:
+            return [self._port(v)]
+        n = self.size(v)
+        value = self.start[v.name][1] if v.name in self.start else v.start
+        starts = array_values(value, n) if value is not None else [None] * n
+        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or "1"
+        return [Port(f"{v.name}[{i + 1}]", unit, x, v.description or "") for i, x in
+                enumerate(starts)]
 
     def _port(self, v: ModelVariable) -> Port:
         value = self.start[v.name][1] if v.name in self.start else v.start
@@ -304,10 +332,13 @@ class FmuBase(SubModel):
         for v in (*self._out_vars, *self._out_disc):
             unknown = declared.get(id(v))
             if unknown is None or unknown.dependencies is None:
-                deps = tuple(i.name for i in in_vars)  # undeclared: depends on all
+                deps = in_vars  # undeclared: depends on all
             else:
-                deps = tuple(d.name for d in unknown.dependencies if id(d) in inputs)
-            result[v.name] = deps
+                deps = [d for d in unknown.dependencies if id(d) in inputs]
+            # ports: an array's every element depends on every element of its inputs
+            names = tuple(p.name for d in deps for p in self._ports(d))
+            for port in self._ports(v):
+                result[port.name] = names
         return result
 
     # -- errors ----------------------------------------------------------------------------------
@@ -599,7 +630,27 @@ def setter_name(v: ModelVariable, version: str) -> tuple[str, type]:
 
 
 def set_values(fmu: Any, values: Sequence[tuple[ModelVariable, Any]], version: str) -> None:
-    """Set start values one by one with the setter of each variable's type."""
+    """Set start values one by one with the setter of each variable's type (an array's
+    values at once, flattened)."""
     for v, value in values:
         name, kind = setter_name(v, version)
-        getattr(fmu, name)([v.valueReference], [kind(value)])
+        if v.dimensions:
+            getattr(fmu, name)([v.valueReference], [kind(x) for x in array_values(value)])
+        else:
+            getattr(fmu, name)([v.valueReference], [kind(value)])
+
+
+def array_values(value: Any, n: int | None = None) -> list[float]:
+    """An array's values flattened (row-major): from nested lists (TOML), a number, or a
+    model description's start text ``"1 0 0 1"``; a single value fills ``n`` elements."""
+    if isinstance(value, str):
+        flat = [float(x) for x in value.split()]
+    elif isinstance(value, list | tuple | np.ndarray):
+        flat = [float(x) for x in np.asarray(value, dtype=float).ravel()]
+    else:
+        flat = [float(value)]
+    if n is not None and len(flat) == 1 and n > 1:
+        flat = flat * n
+    if n is not None and len(flat) != n:
+        raise ValueError(f"{len(flat)} values for an array of {n}")
+    return flat

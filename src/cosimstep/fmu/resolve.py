@@ -13,6 +13,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from cosimstep.errors import Problem
 from cosimstep.submodel import SubModel
 
@@ -194,6 +196,13 @@ def _override_problem(model_name: str, by_name: Mapping[str, ModelVariable], key
         return None
     if v.type == "Boolean" and isinstance(value, bool):
         return None
+    if v.dimensions and isinstance(value, list):
+        flat = np.asarray(value, dtype=object).ravel() if value else np.zeros(0)
+        if flat.size and all(isinstance(x, int | float) and not isinstance(x, bool)
+                             and math.isfinite(x) for x in flat):
+            return None
+        return Problem(f"{where}.{key}", f"'{var}' is an array: give a list of numbers "
+                       f"(nested for a matrix), got {value!r}", "e.g. [1.0, 0.0, 0.0]")
     if isinstance(value, str) or (isinstance(value, float) and not math.isfinite(value)):
         return Problem(f"{where}.{key}", f"must be a finite number, got {value!r}",
                        "write a number")
