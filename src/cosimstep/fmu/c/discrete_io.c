@@ -162,67 +162,36 @@ fmi2Status fmi2Reset(fmi2Component c) { (void)c; return fmi2OK; }
     if ((vr) >= (n)) return FAIL((inst), what ": no variable with value reference %u", \
                                  (unsigned)(vr))
 
-fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                       fmi2Real value[]) {
-    Instance *inst = as_instance(c);
-    for (size_t k = 0; k < nvr; k++) {
-        CHECK_VR(inst, vr[k], N_REAL, "fmi2GetReal");
-        value[k] = inst->s.r[vr[k]];
+/* fmi2Get<Type> / fmi2Set<Type> for the numeric types: one value array per type in the state
+ * (a set of an input also updates the feedthrough outputs). */
+#define GET_SET(Type, ctype, array, count, convert_in, convert_out)                         \
+    fmi2Status fmi2Get##Type(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,    \
+                             ctype value[]) {                                              \
+        Instance *inst = as_instance(c);                                                   \
+        for (size_t k = 0; k < nvr; k++) {                                                 \
+            CHECK_VR(inst, vr[k], count, "fmi2Get" #Type);                                 \
+            value[k] = convert_out(inst->s.array[vr[k]]);                                  \
+        }                                                                                  \
+        return fmi2OK;                                                                     \
+    }                                                                                      \
+    fmi2Status fmi2Set##Type(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,    \
+                             const ctype value[]) {                                        \
+        Instance *inst = as_instance(c);                                                   \
+        for (size_t k = 0; k < nvr; k++) {                                                 \
+            CHECK_VR(inst, vr[k], count, "fmi2Set" #Type);                                 \
+            inst->s.array[vr[k]] = convert_in(value[k]);                                   \
+        }                                                                                  \
+        feedthrough(&inst->s);                                                             \
+        return fmi2OK;                                                                     \
     }
-    return fmi2OK;
-}
 
-fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                       const fmi2Real value[]) {
-    Instance *inst = as_instance(c);
-    for (size_t k = 0; k < nvr; k++) {
-        CHECK_VR(inst, vr[k], N_REAL, "fmi2SetReal");
-        inst->s.r[vr[k]] = value[k];
-    }
-    return fmi2OK;
-}
+#define AS_IS(x) (x)
+#define TO_BOOL(x) ((x) != fmi2False)
+#define FROM_BOOL(x) ((x) ? fmi2True : fmi2False)
 
-fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          fmi2Integer value[]) {
-    Instance *inst = as_instance(c);
-    for (size_t k = 0; k < nvr; k++) {
-        CHECK_VR(inst, vr[k], N_INT, "fmi2GetInteger");
-        value[k] = inst->s.i[vr[k]];
-    }
-    return fmi2OK;
-}
-
-fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          const fmi2Integer value[]) {
-    Instance *inst = as_instance(c);
-    for (size_t k = 0; k < nvr; k++) {
-        CHECK_VR(inst, vr[k], N_INT, "fmi2SetInteger");
-        inst->s.i[vr[k]] = value[k];
-    }
-    feedthrough(&inst->s);
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          fmi2Boolean value[]) {
-    Instance *inst = as_instance(c);
-    for (size_t k = 0; k < nvr; k++) {
-        CHECK_VR(inst, vr[k], N_BOOL, "fmi2GetBoolean");
-        value[k] = inst->s.b[vr[k]] ? fmi2True : fmi2False;
-    }
-    return fmi2OK;
-}
-
-fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          const fmi2Boolean value[]) {
-    Instance *inst = as_instance(c);
-    for (size_t k = 0; k < nvr; k++) {
-        CHECK_VR(inst, vr[k], N_BOOL, "fmi2SetBoolean");
-        inst->s.b[vr[k]] = value[k] != fmi2False;
-    }
-    feedthrough(&inst->s);
-    return fmi2OK;
-}
+GET_SET(Real, fmi2Real, r, N_REAL, AS_IS, AS_IS)
+GET_SET(Integer, fmi2Integer, i, N_INT, AS_IS, AS_IS)
+GET_SET(Boolean, fmi2Boolean, b, N_BOOL, TO_BOOL, FROM_BOOL)
 
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                          fmi2String value[]) {
