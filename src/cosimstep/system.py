@@ -7,6 +7,7 @@ valid system into flat index tables the masters use in their hot loop.
 
 from __future__ import annotations
 
+import dataclasses
 import graphlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -111,6 +112,12 @@ class System:
         problems: list[Problem] = []
         fed: dict[tuple[str, str], Connection] = {}
         for c in self.connections:
+            sizes = self._array_sizes(c)
+            if sizes is not None and sizes[0] != sizes[1]:
+                problems.append(Problem(c.label, f"arrays of different sizes: {sizes[0]} "
+                                        f"outputs, {sizes[1]} inputs", "connect arrays of "
+                                        "equal size, or single elements (model.y[2])"))
+        for c in self._links():
             problems.extend(self._check_connection(c, fed))
         for name, model in self.models.items():
             for port in model.inputs:
@@ -164,11 +171,48 @@ class System:
             yield Problem(c.label, mismatch, "connect an output of the same kind, or declare "
                           "the rounding on the connection (round = true)")
 
+    def _links(self) -> list[Connection]:
+        """The connections port to port: one between two arrays (``a.y -> b.u``, ports
+        ``y[1]`` … and ``u[1]`` … of equal count) stands for one per element pair."""
+        out = []
+        for c in self.connections:
+            sizes = self._array_sizes(c)
+            if sizes is None:
+                out.append(c)
+            elif sizes[0] == sizes[1]:  # (unequal sizes: reported by problems())
+                out.extend(dataclasses.replace(c, source=x, target=y)
+                           for x, y in self._array_pairs(c))
+        return out
+
+    def _array_ports(self, address: str, outputs: bool) -> list[str] | None:
+        """``model.y[1]``, ``model.y[2]`` … when ``address`` names an array of ``model``
+        (no port of that name, but elements), else ``None``."""
+        try:
+            model_name, port = split_address(address)
+        except ValueError:
+            return None
+        model = self.models.get(model_name)
+        if model is None:
+            return None
+        ports = model.outputs if outputs else model.inputs
+        if any(p.name == port for p in ports):
+            return None
+        elements = [f"{model_name}.{p.name}" for p in ports if p.name.startswith(port + "[")]
+        return elements or None
+
+    def _array_sizes(self, c: Connection) -> tuple[int, int] | None:
+        out, ins = self._array_ports(c.source, True), self._array_ports(c.target, False)
+        return (len(out), len(ins)) if out is not None and ins is not None else None
+
+    def _array_pairs(self, c: Connection) -> list[tuple[str, str]]:
+        out, ins = self._array_ports(c.source, True), self._array_ports(c.target, False)
+        return list(zip(out or [], ins or []))
+
     def _port_graph(self) -> dict[str, set[str]]:
         """Dependencies at one instant: an input depends on its source; a feedthrough output on
         its inputs. A cycle in this graph is an algebraic loop."""
         graph: dict[str, set[str]] = {}
-        for c in self.connections:
+        for c in self._links():
             graph.setdefault(f"{c.target}", set()).add(f"{c.source}")
         for name, model in self.models.items():
             for out, ins in model.capabilities.feedthrough.items():
@@ -206,7 +250,7 @@ class System:
                 out_names.append(f"{name}.{port.name}")
                 out_units.append(port.unit)
                 offset += 1
-        by_target = {c.target: c for c in self.connections}
+        by_target = {c.target: c for c in self._links()}
         src, a, b = [], [], []
         for name, model in zip(names, models):
             s = np.zeros(len(model.inputs), dtype=int)
