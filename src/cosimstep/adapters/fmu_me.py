@@ -139,8 +139,15 @@ class MeSubModel(FmuBase):
         self._xbuf, self._xv = _buffer(self._nx)
         self._dxbuf, self._dxv = _buffer(self._nx)
         self._zbuf, self._zv = _buffer(self._nz)
-        self._ubuf, self._uv = _buffer(n_in)
-        self._vrbuf = (c_uint * max(n_in, 1))(*self._in_vr)
+        # inputs of variability "continuous" go to the FMU at every evaluation; "discrete" ones
+        # may change only in event mode, so a new value is sent there (an event)
+        self._disc = np.array([i for i, v in enumerate(self._in_vars)
+                               if v.variability == "discrete"], dtype=int)
+        self._cont = np.array([i for i in range(n_in) if i not in set(self._disc.tolist())],
+                              dtype=int)
+        self._ubuf, self._uv = _buffer(len(self._cont))
+        self._vrbuf = (c_uint * max(len(self._cont), 1))(*[self._in_vr[i] for i in self._cont])
+        self._sent_disc = self._u[self._disc].copy()
         self._z_key: tuple[float, bytes] | None = None
         self._z_last = np.zeros(self._nz)
         self._callbacks = self._fmi2_callbacks()
@@ -162,6 +169,7 @@ class MeSubModel(FmuBase):
             self._u = np.array([p.start if p.start is not None else 0.0 for p in self.inputs],
                                float)
             self._du = np.zeros_like(self._du)
+            self._sent_disc = self._u[self._disc].copy()  # set in initialization mode
             self.events = []
             self._iterate_discrete_states(t0)  # initialization ends in event mode
             fmu.enterContinuousTimeMode()
@@ -261,6 +269,7 @@ class MeSubModel(FmuBase):
             except FMICallException as exc:
                 raise self._error(exc.function, exc) from None
         self._t, self._x, self._u, self._du = t, x.copy(), u.copy(), du.copy()
+        self._sent_disc = self._u[self._disc].copy()  # restored with the FMU state, or re-sent
         self._next_event = next_event
         del self.events[n_events:]
         self._z_key = None
@@ -273,11 +282,26 @@ class MeSubModel(FmuBase):
         if not self._in_vr:
             return
         fmu = self._live()
-        self._uv[:] = u
+        self._uv[:] = u[self._cont]
         try:
-            fmu.fmi2SetReal(fmu.component, self._vrbuf, len(self._in_vr), self._ubuf)
+            if self._cont.size:
+                fmu.fmi2SetReal(fmu.component, self._vrbuf, self._cont.size, self._ubuf)
+            if self._disc.size and not np.array_equal(u[self._disc], self._sent_disc):
+                self._set_discrete(u[self._disc])
         except FMICallException as exc:
-            raise self._error("fmi2SetReal", exc) from None
+            raise self._error(exc.function, exc) from None
+
+    def _set_discrete(self, values: np.ndarray) -> None:
+        """New values of discrete inputs: set in event mode, the event iterated (it may change
+        the states), back to continuous time."""
+        fmu = self._fmu
+        fmu.enterEventMode()
+        fmu.setReal([self._in_vr[i] for i in self._disc], [float(x) for x in values])
+        self._iterate_discrete_states(self._t)
+        fmu.enterContinuousTimeMode()
+        self._sent_disc = np.array(values, dtype=float)
+        self._z_key = None
+        self._x = self._read_states()
 
     def _evaluate(self, s: float, y: np.ndarray) -> None:
         """Give the FMU time ``s``, states ``y`` and the inputs at ``s``."""
@@ -286,9 +310,9 @@ class MeSubModel(FmuBase):
         if self._nx:
             self._xv[:] = y
             fmu.fmi2SetContinuousStates(fmu.component, self._xbuf, self._nx)
-        if self._slope and self._in_vr:
-            self._uv[:] = self._inputs_at(s)
-            fmu.fmi2SetReal(fmu.component, self._vrbuf, len(self._in_vr), self._ubuf)
+        if self._slope and self._cont.size:
+            self._uv[:] = self._inputs_at(s)[self._cont]
+            fmu.fmi2SetReal(fmu.component, self._vrbuf, self._cont.size, self._ubuf)
 
     def _rhs(self, s: float, y: np.ndarray) -> np.ndarray:
         self._evaluate(s, y)
