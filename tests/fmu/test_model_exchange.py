@@ -326,3 +326,23 @@ def test_the_interface_is_chosen_in_the_system_file(tmp_path: Path) -> None:
     res = CliRunner().invoke(main, ["validate", str(tmp_path / "cs.toml")])
     assert res.exit_code == 2 and "models.ball.interface" in res.output
     assert "choose an interface the FMU offers" in res.output
+
+
+def test_a_discrete_input_is_set_in_event_mode(fmu_cache: Path) -> None:
+    """The `ramp` ME FMU (x' = rate) refuses a new `rate` (variability discrete) outside event
+    mode, as the standard says; the adapter sends a changed value in event mode. Driven by the
+    stair's counter (1, 2, 3, 4 on the half seconds), x(2) = 0.5 (1 + 2 + 3 + 4) = 5."""
+    from cosimstep.adapters.fmu import FmuSubModel
+    from cosimstep.adapters.fmu_open import open_fmu
+    from cosimstep.fmu.build import build_fmu
+
+    system = cosimstep.System()
+    system.add("st", FmuSubModel(build_fmu("stair", cache=fmu_cache), {"period": 0.5}))
+    system.add("r", open_fmu(build_fmu("ramp", cache=fmu_cache)))
+    system.connect("st.counter", "r.rate")
+    result = cosimstep.simulate(system, 2.0, cosimstep.Fixed(0.1),
+                                cosimstep.MasterOptions("gauss-seidel", 0))
+    assert result.success, result.message
+    assert result["r.x"][-1] == pytest.approx(5.0, abs=1e-9)
+    half = np.searchsorted(result.times, 1.0 - 1e-9)
+    assert result["r.x"][half] == pytest.approx(1.5, abs=1e-9)  # 0.5 (1 + 2)

@@ -168,6 +168,8 @@ RECIPES: dict[str, Recipe] = {
                             _ME_HEADERS),
     # non-real variables: an integer stair with time events and a boolean output, no inputs and
     # no real outputs, a string parameter; and an integer/boolean feedthrough with a real output
+    # FMI 2.0 model exchange with a discrete real input (settable only in event mode)
+    "ramp": Recipe(C_DIR / "ramp.xml", (C_DIR / "ramp.c",), _ME_HEADERS),
     "stair": Recipe(C_DIR / "stair.xml", (C_DIR / "discrete_io.c",), (C_DIR / "fmi2.h",),
                     {"KIND": "1"}),
     "echo": Recipe(C_DIR / "echo.xml", (C_DIR / "discrete_io.c",), (C_DIR / "fmi2.h",),

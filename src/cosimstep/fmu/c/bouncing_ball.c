@@ -42,7 +42,9 @@ static void model_start(State *s) {
     s->kicked = 0;
 }
 
-static int model_settable(fmi2ValueReference vr, int before_initialization_ends) {
+static int model_settable(fmi2ValueReference vr, int before_initialization_ends,
+                          int in_event_mode) {
+    (void)in_event_mode;
     if (vr == VR_FLOOR) return 1;
     return before_initialization_ends && vr != VR_BOUNCES && vr < VR_DER_H;
 }

@@ -5,7 +5,7 @@
  *   typedef struct { double time; double v[N_VR]; ...discrete state... } State;
  *   STATE_VR[N_STATES]              value references of the continuous states
  *   void model_start(State *)       start values
- *   int model_settable(fmi2ValueReference vr, int before_initialization_ends)
+ *   int model_settable(fmi2ValueReference vr, int before_initialization_ends, int in_event_mode)
  *   const char *model_check(const State *)       NULL, or why the parameters are invalid
  *   void model_derivatives(State *s, double dx[N_STATES])  also stores derived variables in v
  *   void model_indicators(const State *s, double z[])      (N_INDICATORS values)
@@ -174,7 +174,7 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     const int before = inst->mode == MODE_INSTANTIATED || inst->mode == MODE_INITIALIZATION;
     for (size_t i = 0; i < nvr; i++) {
         if (vr[i] >= N_VR) return FAIL(inst, "fmi2SetReal: unknown value reference %u", vr[i]);
-        if (!model_settable(vr[i], before))
+        if (!model_settable(vr[i], before, inst->mode == MODE_EVENT))
             return FAIL(inst, "fmi2SetReal: value reference %u cannot be set now", vr[i]);
     }
     for (size_t i = 0; i < nvr; i++) inst->s.v[vr[i]] = value[i];

@@ -47,7 +47,9 @@ static void model_start(State *s) {
     memcpy(s->v, start, sizeof start);
 }
 
-static int model_settable(fmi2ValueReference vr, int before_initialization_ends) {
+static int model_settable(fmi2ValueReference vr, int before_initialization_ends,
+                          int in_event_mode) {
+    (void)in_event_mode;
     if (vr == VR_U_THETA || vr == VR_U_OMEGA) return 1;
     return before_initialization_ends && vr < VR_DER_THETA;
 }
