@@ -31,9 +31,6 @@ if TYPE_CHECKING:
 
     Loop = FixedLoop | ControllerLoop
 
-HISTORY = 4
-"""Stored points kept before the checkpoint's: as many as the general step reads
-(``loops.HISTORY_ROWS``), more than extrapolation of order 2 needs."""
 VERSION = 1
 
 
@@ -90,7 +87,7 @@ def capture(loop: Loop) -> dict[str, Any]:
         except Exception as exc:
             raise RuntimeError(f"sub-model '{name}' cannot serialize its state "
                                f"({type(exc).__name__}: {exc})") from exc
-    return {"version": VERSION, "t": loop.t, "loop": loop.snapshot(HISTORY),
+    return {"version": VERSION, "t": loop.t, "loop": loop.snapshot(),
             "calls": runner.calls + lean_calls,
             "time_in_models": runner.time_in_models + lean_time,
             "master": {"dy0": runner._dy0, "assumed": runner.assumed.copy(),

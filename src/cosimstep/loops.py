@@ -54,14 +54,16 @@ class _Context:
     def push(self, t: float, y: np.ndarray) -> None:
         self.all_times.append(t)
         self.rows.append(y)
-        first = max(self._segment, len(self.rows) - HISTORY_ROWS)
-        self.history = np.array(self.rows[first:])
-        self.times = self.all_times[first:]
+        self._window()
 
     def reset(self, times: list[float], rows: list[np.ndarray], segment: int) -> None:
         """Hold these points (a resumed run's), the segment starting at row ``segment``."""
         self.all_times, self.rows, self._segment = list(times), list(rows), segment
-        first = max(segment, len(rows) - HISTORY_ROWS)
+        self._window()
+
+    def _window(self) -> None:
+        """The points extrapolation may use: the last ones of the segment."""
+        first = max(self._segment, len(self.rows) - HISTORY_ROWS)
         self.history = np.array(self.rows[first:])
         self.times = self.all_times[first:]
 
@@ -260,13 +262,13 @@ class ControllerLoop(_Loop):
 
         return crossing(g, 0.0, h, g0, g1, EVENT_TOL * max(1.0, abs(t)))
 
-    def snapshot(self, history: int) -> dict[str, Any]:
+    def snapshot(self) -> dict[str, Any]:
         """The loop's own state for a checkpoint (:mod:`cosimstep.checkpoint`): its clock, the
-        controller, the last ``history + 1`` points of the segment."""
+        controller, the last points of the segment (more than the step reads)."""
         ctx, clock = self.ctx, self._clock
         assert clock is not None
         n = len(ctx.rows) - 1
-        first = max(ctx._segment, n - history)
+        first = max(ctx._segment, n - HISTORY_ROWS)
         return {"first": self.offset + first, "segment": ctx._segment - first,
                 "clock": (clock._sum, clock._carry), "times": ctx.all_times[first:],
                 "rows": [r.copy() for r in ctx.rows[first:]], "steps": self.steps[first:],
@@ -448,20 +450,19 @@ class FixedLoop(_Loop):
                 segment = n
                 runner.restart()
             if n == due:
-                self._state = (clock, carry, segment, due)
+                self._state = (clock, carry, segment, due)  # what a checkpoint captures
                 due = n + self._publish()
                 if self.budget:
-                    self._state = (clock, carry, segment, due)
                     self.budget.check(self._calls())
         self._state = (clock, carry, segment, due)
 
-    def snapshot(self, history: int) -> dict[str, Any]:
+    def snapshot(self) -> dict[str, Any]:
         """The loop's own state for a checkpoint (:mod:`cosimstep.checkpoint`): its clock and
-        the last ``history + 1`` points of the segment."""
+        the last points of the segment (more than the step reads)."""
         assert self._state is not None
         clock, carry, segment, _ = self._state
         n = self.n
-        first = max(segment, n - history)
+        first = max(segment, n - HISTORY_ROWS)
         return {"first": self.offset + first, "segment": self.offset + segment,
                 "clock": clock, "carry": carry, "times": self.times[first:n + 1].copy(),
                 "rows": self.table[first:n + 1].copy(), "hs": self.hs[first:n].copy(),

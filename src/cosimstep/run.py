@@ -125,6 +125,8 @@ class Synchronous(Scheme):
         self.controller, self.master, self.events = controller, master, events
         self.runner = Master(compiled, master)
         self.loop: FixedLoop | ControllerLoop | None = None
+        self._checkpoints: Any = None  # see resume()
+        self._resume_from: Any = None
         self.fired: list[Event] = []
         self.max_events = MAX_EVENTS
         self.state_events = [k for k, m in enumerate(compiled.models)
@@ -165,13 +167,11 @@ class Synchronous(Scheme):
         if type(self.controller) is Fixed and not watched:
             self.loop = FixedLoop(self.runner, self.controller.step, self.t0, self.until,
                                   self.events, sink, bar)
-            self.loop.checkpoints = getattr(self, "_checkpoints", None)
-            self.loop.resume_from = getattr(self, "_resume_from", None)
+            self.loop.checkpoints, self.loop.resume_from = self._checkpoints, self._resume_from
         else:
             self.loop = ControllerLoop(self.runner, self.controller, self.t0, self.until,
                                        self.events, sink, bar)
-            self.loop.checkpoints = getattr(self, "_checkpoints", None)
-            self.loop.resume_from = getattr(self, "_resume_from", None)
+            self.loop.checkpoints, self.loop.resume_from = self._checkpoints, self._resume_from
         if watched and isinstance(self.loop, ControllerLoop):
             self.loop.watch, self.loop.fire = self._watch, self._fire_crossed
         discrete = [_EventActor(self, k) for k, m in enumerate(self.compiled.models)
