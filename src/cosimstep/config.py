@@ -46,7 +46,8 @@ class ModelSection(Section):
     type: str = Field(description="built-in type (see `cosimstep models`), 'python' or 'fmu'")
     # numbers for built-in types; any TOML value for 'python'
     parameters: dict[str, Any] = Field(default_factory=dict)
-    start: dict[str, float] = Field(default_factory=dict)
+    # numbers; arrays (nested lists) for an FMU's array variables
+    start: dict[str, float | list[Any]] = Field(default_factory=dict)
     solver: dict[str, Any] | None = None
     class_: str | None = Field(None, alias="class",
                                description="for type = 'python': 'module:Class' or 'file.py:Class'")
@@ -304,10 +305,14 @@ def _builtin_values_ok(sec: ModelSection, kind: Any, where: str,
             problems.append(Problem(f"{where}.parameters.{k}", f"must be a finite number, got "
                                     f"{v!r}", "write a number"))
             ok = False
-    for k in sec.start:
+    for k, v in sec.start.items():
         if k not in kind.start:
             problems.append(Problem(f"{where}.start.{k}", f"'{sec.type}' has no start value "
                                     f"'{k}'", f"it reads: {', '.join(kind.start)}"))
+        elif isinstance(v, list):
+            problems.append(Problem(f"{where}.start.{k}", "must be a number, got a list",
+                                    "write a number (arrays are for FMU array variables)"))
+            ok = False
     return ok
 
 

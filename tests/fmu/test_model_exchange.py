@@ -257,9 +257,9 @@ def test_refused_fmus(ball: Path, fmu_cache: Path, tmp_path: Path) -> None:
                     'fmiVersion="1.0" modelName="old" modelIdentifier="old" guid="{1}" '
                     'numberOfContinuousStates="0" numberOfEventIndicators="0">'
                     "<ModelVariables/></fmiModelDescription>")
-    fmi3_me = _rewrite(fmi3, tmp_path / "fmi3_me.fmu", lambda xml: re.sub(
-        r"<CoSimulation.*?/>", '<ModelExchange modelIdentifier="pendulum_bar1_fmi3"/>', xml,
-        flags=re.S))
+    fmi3_se = _rewrite(fmi3, tmp_path / "fmi3_se.fmu", lambda xml: re.sub(
+        r"<CoSimulation.*?/>", '<ScheduledExecution modelIdentifier="pendulum_bar1_fmi3"/>',
+        xml, flags=re.S))
     no_binary = tmp_path / "no_binary.fmu"
     with zipfile.ZipFile(fmi3) as zin, zipfile.ZipFile(no_binary, "w") as zout:
         for item in zin.infolist():
@@ -268,8 +268,9 @@ def test_refused_fmus(ball: Path, fmu_cache: Path, tmp_path: Path) -> None:
     corrupt = tmp_path / "corrupt.fmu"
     corrupt.write_bytes(b"PK\x03\x04 not a zip")
     cases = [(fmi1, r"FMI 1\.0 is not supported \(cosimstep runs FMI 2\.0 co-simulation and FMI "
-                    r"3\.0 co-simulation and FMI 2\.0 model exchange FMUs\)"),
-             (fmi3_me, r"FMI 3\.0 model exchange only is not supported"),
+                    r"3\.0 co-simulation and FMI 2\.0 model exchange and FMI 3\.0 model "
+                    r"exchange FMUs\)"),
+             (fmi3_se, r"FMI 3\.0 scheduled execution only is not supported"),
              (no_binary, r"no binary for this platform \(binaries/x86_64-linux/"
                          r"pendulum_bar1_fmi3\.so is missing"),
              (corrupt, "not a zip archive")]

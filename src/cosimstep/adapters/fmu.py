@@ -38,6 +38,7 @@ from cosimstep.adapters.fmu_base import (
     FMI2_CS,
     FMI2_ME,
     FMI3_CS,
+    FMI3_ME,
     SUPPORTED,
     FmuBase,
     FmuError,
@@ -50,8 +51,8 @@ from cosimstep.submodel import Capabilities
 
 # check_fmu, fmu_interface, FmuError and the version constants live in fmu_base (every adapter
 # uses them) and are re-exported here, where they were first defined.
-__all__ = ["FMI2_CS", "FMI2_ME", "FMI3_CS", "INPUT_DERIVATIVE_ORDER", "SUPPORTED", "DirectIO",
-           "FmuError", "FmuSubModel", "check_fmu", "fmu_interface"]
+__all__ = ["FMI2_CS", "FMI2_ME", "FMI3_CS", "FMI3_ME", "INPUT_DERIVATIVE_ORDER", "SUPPORTED",
+           "DirectIO", "FmuError", "FmuSubModel", "check_fmu", "fmu_interface"]
 
 INPUT_DERIVATIVE_ORDER = 3  # offered to masters when an FMU can interpolate inputs
 
@@ -215,7 +216,7 @@ class FmuSubModel(FmuBase):
             raise self._not_live()
         n = self._u.size
         if self._in_disc:
-            self._set_discrete(values[n:])
+            self._write_discrete(values[n:])
             values = values[:n]
         self._u[:] = values
         status = self._c["fmi2SetReal"](self._component, self._addr["in_vr"], self._u.size,
@@ -265,38 +266,8 @@ class FmuSubModel(FmuBase):
         if status > 1:
             raise self._failed("fmi2GetReal", status)
         if self._out_disc:
-            return np.concatenate([self._y, self._get_discrete()])
+            return np.concatenate([self._y, self._read_discrete()])
         return self._y.copy()
-
-    def _set_discrete(self, values: np.ndarray) -> None:
-        """Integer, enumeration and boolean inputs (after the real ones): the master's floats
-        rounded to the nearest integer (a boolean: nonzero)."""
-        fmu = self._fmu
-        ints = [(v.valueReference, round(float(x)))
-                for v, x in zip(self._in_disc, values) if v.type != "Boolean"]
-        bools = [(v.valueReference, bool(round(float(x))))
-                 for v, x in zip(self._in_disc, values) if v.type == "Boolean"]
-        try:
-            if ints:
-                fmu.setInteger(*map(list, zip(*ints)))
-            if bools:
-                fmu.setBoolean(*map(list, zip(*bools)))
-        except Exception as exc:
-            raise self._error(getattr(exc, "function", "fmi2SetInteger"), exc) from None
-
-    def _get_discrete(self) -> np.ndarray:
-        """Integer, enumeration and boolean outputs as floats, in port order."""
-        fmu = self._fmu
-        ints = [v for v in self._out_disc if v.type != "Boolean"]
-        bools = [v for v in self._out_disc if v.type == "Boolean"]
-        try:
-            got = dict(zip(map(id, ints), fmu.getInteger([v.valueReference for v in ints])
-                           if ints else []))
-            got.update(zip(map(id, bools), fmu.getBoolean([v.valueReference for v in bools])
-                           if bools else []))
-        except Exception as exc:
-            raise self._error(getattr(exc, "function", "fmi2GetInteger"), exc) from None
-        return np.array([float(got[id(v)]) for v in self._out_disc])
 
     def get_output_derivatives(self) -> np.ndarray:
         if not self.capabilities.provides_derivatives:

@@ -94,11 +94,7 @@ class Fmu3SubModel(FmuBase):
     def set_inputs(self, values: np.ndarray) -> None:
         n = self._n_in
         if self._in_disc:  # integers and booleans: the master's floats, rounded
-            try:
-                set_values(self._live(), [(v, round(float(x))) for v, x in
-                                          zip(self._in_disc, values[n:], strict=True)], "3.0")
-            except FMICallException as exc:
-                raise self._error(exc.function, exc) from None
+            self._write_discrete(values[n:])
             values = values[:n]
         if not n:
             return
@@ -124,9 +120,7 @@ class Fmu3SubModel(FmuBase):
             reals = np.zeros(0)  # FMPy cannot get zero values
         if not self._out_disc:
             return reals
-        ints = [float(self._call(f"get{'Int64' if v.type == 'Enumeration' else v.type}",
-                                 [v.valueReference])[0]) for v in self._out_disc]
-        return np.concatenate([reals, ints])
+        return np.concatenate([reals, self._read_discrete()])
 
     def get_output_derivatives(self) -> np.ndarray:
         if not self.capabilities.provides_derivatives:

@@ -8,7 +8,7 @@ what the FMU logged, unpacks the archive into a temporary folder and removes it 
 FMU-state pointers for reuse until :meth:`FmuBase.terminate` frees them. The adapters are
 :class:`~cosimstep.adapters.fmu.FmuSubModel` (FMI 2.0 co-simulation),
 :class:`~cosimstep.adapters.fmu3.Fmu3SubModel` (FMI 3.0 co-simulation) and
-:class:`~cosimstep.adapters.fmu_me.MeSubModel` (FMI 2.0 model exchange).
+:class:`~cosimstep.adapters.fmu_me.MeSubModel` (FMI 2.0 and 3.0 model exchange).
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ _SETTABLE_TYPES = (*REAL_TYPES, "Integer", "Enumeration", "Boolean", "Int8", "UI
                    "UInt16", "Int32", "UInt32", "Int64", "UInt64", "String")
 _SETTABLE_BEFORE_INIT = ("exact", "approx")
 
-__all__ = ["FMI2_CS", "FMI2_ME", "FMI3_CS", "STATUS", "SUPPORTED", "FmuBase", "FmuError",
+__all__ = ["FMI2_CS", "FMI2_ME", "FMI3_CS", "FMI3_ME", "STATUS", "SUPPORTED", "FmuBase", "FmuError",
            "check_fmu", "fmu_interface"]
 
 
@@ -57,10 +57,11 @@ class FmuError(RuntimeError):
 FMI2_CS = ("2.0", "CS")
 FMI2_ME = ("2.0", "ME")
 FMI3_CS = ("3.0", "CS")
-SUPPORTED = (FMI2_CS, FMI3_CS, FMI2_ME)
+FMI3_ME = ("3.0", "ME")
+SUPPORTED = (FMI2_CS, FMI3_CS, FMI2_ME, FMI3_ME)
 """FMI versions and kinds cosimstep runs, in the order :func:`fmu_interface` prefers them (an
 FMU's own co-simulation solver before cosimstep's wrapper around model exchange)."""
-_KIND_NAMES = {"CS": "co-simulation", "ME": "model exchange"}
+_KIND_NAMES = {"CS": "co-simulation", "ME": "model exchange", "SE": "scheduled execution"}
 
 
 def fmu_interface(md: ModelDescription,
@@ -72,8 +73,9 @@ def fmu_interface(md: ModelDescription,
 
 def _offered(md: ModelDescription) -> list[tuple[str, str]]:
     version = "3.0" if str(md.fmiVersion).startswith("3.") else str(md.fmiVersion)
-    return [(version, kind) for kind, part in (("CS", md.coSimulation), ("ME", md.modelExchange))
-            if part is not None]
+    parts = (("CS", md.coSimulation), ("ME", md.modelExchange),
+             ("SE", getattr(md, "scheduledExecution", None)))
+    return [(version, kind) for kind, part in parts if part is not None]
 
 
 def _describe(pairs: Sequence[tuple[str, str]]) -> str:
@@ -286,8 +288,9 @@ class FmuBase(SubModel):
             v = by_name.get(name)
             if v is None:
                 problems.append(f"'{name}' is not a variable of the FMU")
-            elif v.variability == "constant" or v.causality in ("independent", "local") or (
-                    v.causality in ("output", "calculatedParameter")
+            elif v.variability == "constant" or v.causality == "independent" or (
+                    # FMI: outputs and locals (states) only with a start value that is used
+                    v.causality in ("output", "calculatedParameter", "local")
                     and v.initial not in _SETTABLE_BEFORE_INIT):
                 problems.append(f"'{name}' ({v.causality}, {v.variability}) cannot be set")
             elif v.type not in _SETTABLE_TYPES or (v.dimensions and not self.ARRAYS):
@@ -340,6 +343,39 @@ class FmuBase(SubModel):
             for port in self._ports(v):
                 result[port.name] = names
         return result
+
+    # -- integer, boolean and enumeration ports -------------------------------------------------
+    def _write_discrete(self, values: Sequence[float]) -> None:
+        """Set the integer, enumeration and boolean inputs (:attr:`_in_disc`) from the master's
+        floats: rounded to the nearest integer (a boolean: nonzero); one call per FMI type."""
+        groups: dict[str, tuple[list[int], list[Any]]] = {}
+        for v, x in zip(self._in_disc, values, strict=True):
+            name, kind = setter_name(v, self.fmi_version)
+            vrs, xs = groups.setdefault(name, ([], []))
+            vrs.append(v.valueReference)
+            xs.append(kind(round(float(x))))
+        fmu = self._live()
+        for name, (vrs, xs) in groups.items():
+            try:
+                getattr(fmu, name)(vrs, xs)
+            except FMICallException as exc:
+                raise self._error(exc.function, exc) from None
+
+    def _read_discrete(self) -> np.ndarray:
+        """The integer, enumeration and boolean outputs (:attr:`_out_disc`) as floats, in port
+        order; one call per FMI type."""
+        groups: dict[str, list[int]] = {}
+        for i, v in enumerate(self._out_disc):
+            groups.setdefault(getter_name(v, self.fmi_version), []).append(i)
+        fmu = self._live()
+        out = np.empty(len(self._out_disc))
+        for name, index in groups.items():
+            try:
+                got = getattr(fmu, name)([self._out_disc[i].valueReference for i in index])
+            except FMICallException as exc:
+                raise self._error(exc.function, exc) from None
+            out[index] = [float(x) for x in got]
+        return out
 
     # -- errors ----------------------------------------------------------------------------------
     def _logger(self, status: int, message: bytes | str | None) -> None:
@@ -627,6 +663,15 @@ def setter_name(v: ModelVariable, version: str) -> tuple[str, type]:
     if version == "2.0":
         return "setInteger", int
     return f"set{'Int64' if v.type == 'Enumeration' else v.type}", int
+
+
+def getter_name(v: ModelVariable, version: str) -> str:
+    """FMPy's getter for a non-real variable's type (``getInteger``, ``getInt32``...)."""
+    if v.type == "Boolean":
+        return "getBoolean"
+    if version == "2.0":
+        return "getInteger"
+    return f"get{'Int64' if v.type == 'Enumeration' else v.type}"
 
 
 def set_values(fmu: Any, values: Sequence[tuple[ModelVariable, Any]], version: str) -> None:

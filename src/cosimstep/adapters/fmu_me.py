@@ -1,4 +1,4 @@
-"""FMI 2.0 model-exchange FMUs as co-simulation sub-models: cosimstep integrates them (issue 5).
+"""Model-exchange FMUs (FMI 2.0 and 3.0) as co-simulation sub-models: cosimstep integrates them.
 
 A model-exchange FMU only evaluates its equations — derivatives, event indicators, outputs — for
 states and a time the importer gives it; :class:`MeSubModel` is that importer, so the FMU behaves
@@ -8,7 +8,18 @@ RK45, rtol = 1e-8, atol = 1e-10 as the Python sub-models, so a model written bot
 same numbers). Inputs follow the polynomial the master sets (value and up to three derivatives),
 exactly as :class:`~cosimstep.adapters.ode.OdeSubModel` does.
 
-Events, following the FMI 2.0 model-exchange protocol:
+FMI 2.0 and FMI 3.0 model exchange follow the same protocol under different names
+(``fmi2NewDiscreteStates`` is ``fmi3UpdateDiscreteStates``, ``fmi2GetDerivatives`` is
+``fmi3GetContinuousStateDerivatives``, FMI 3.0 has no ``setupExperiment``); :class:`_Calls` binds
+the raw functions of the version at hand once, so the integration below is written once.
+
+Ports: real inputs and outputs (FMI 3.0 Float64 and Float32, arrays as one port per element),
+then integer, boolean and enumeration ones. Real inputs of variability ``continuous`` go to the
+FMU at every evaluation; inputs that may change only in event mode (real ones of variability
+``discrete``, and every integer, boolean and enumeration input) are set there when their value
+changes, and the event is iterated — a change of a discrete input is an event.
+
+Events, following the model-exchange protocol:
 
 * **State events.** Each event indicator ``z`` is a ``solve_ivp`` event function. An event is a
   change of ``z > 0``; the crossing is located by ``solve_ivp``'s root finding and the time is then
@@ -49,10 +60,12 @@ from typing import Any
 import numpy as np
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Model, fmi2False
+from fmpy.fmi3 import FMU3Model
 from scipy.integrate import solve_ivp
 
-from cosimstep.adapters.fmu_base import FMI2_ME, FmuBase, fmu_logging, set_values
+from cosimstep.adapters.fmu_base import FMI2_ME, FMI3_ME, FmuBase, fmu_logging, set_values
 from cosimstep.adapters.ode import INPUT_ORDER, SolveIvp, _taylor
+from cosimstep.errors import EndOfSimulation
 from cosimstep.submodel import Capabilities
 
 __all__ = ["MeSubModel", "make_me_solver"]
@@ -87,8 +100,43 @@ def make_me_solver(spec: Mapping[str, Any] | None) -> SolveIvp:
     return SolveIvp(method=chosen, **{k: float(v) for k, v in spec.items()})
 
 
+class _Calls:
+    """The raw FMI functions the integration calls many times per step, bound to one instance.
+
+    Each takes the buffers of :class:`MeSubModel`; FMPy's wrappers raise ``FMICallException``
+    on an error status, as its high-level methods do.
+    """
+
+    __slots__ = ("get_derivatives", "get_indicators", "get_states", "set_reals",
+                 "set_states", "set_time", "update_discrete")
+
+    def __init__(self, fmu: Any, version: str, vr: Any, n_vr: int, values: Any,
+                 n_values: int) -> None:
+        c = fmu.component
+        p = "fmi3" if version == "3.0" else "fmi2"
+        derivatives = getattr(fmu, "fmi3GetContinuousStateDerivatives" if p == "fmi3"
+                              else "fmi2GetDerivatives")
+        time, states = getattr(fmu, f"{p}SetTime"), getattr(fmu, f"{p}SetContinuousStates")
+        get_states, indicators = (getattr(fmu, f"{p}GetContinuousStates"),
+                                  getattr(fmu, f"{p}GetEventIndicators"))
+        self.set_time: Callable[[float], Any] = lambda t: time(c, t)
+        self.set_states: Callable[[Any, int], Any] = lambda buf, n: states(c, buf, n)
+        self.get_states: Callable[[Any, int], Any] = lambda buf, n: get_states(c, buf, n)
+        self.get_derivatives: Callable[[Any, int], Any] = lambda buf, n: derivatives(c, buf, n)
+        self.get_indicators: Callable[[Any, int], Any] = lambda buf, n: indicators(c, buf, n)
+        if p == "fmi3":
+            set_float = fmu.fmi3SetFloat64
+            self.set_reals: Callable[[], Any] = lambda: set_float(c, vr, n_vr, values, n_values)
+            self.update_discrete: Callable[[], tuple] = fmu.updateDiscreteStates
+        else:
+            set_real = fmu.fmi2SetReal
+            self.set_reals = lambda: set_real(c, vr, n_vr, values)
+            self.update_discrete = fmu.newDiscreteStates
+
+
 class MeSubModel(FmuBase):
-    """An FMI 2.0 model-exchange FMU integrated by cosimstep, as a co-simulation sub-model.
+    """A model-exchange FMU (FMI 2.0 or 3.0) integrated by cosimstep, as a co-simulation
+    sub-model.
 
     Parameters
     ----------
@@ -104,8 +152,11 @@ class MeSubModel(FmuBase):
         rtol = 1e-8, atol = 1e-10, as the Python sub-models.
     """
 
-    SUPPORTED = (FMI2_ME,)
-    CALL_PREFIX = "fmi2"
+    SUPPORTED = (FMI2_ME, FMI3_ME)
+    CALL_PREFIX = "fmi2"  # "fmi3" for an FMI 3.0 FMU (set per instance)
+    DISCRETE_TYPES = ("Integer", "Boolean", "Enumeration", "Int8", "UInt8", "Int16", "UInt16",
+                      "Int32", "UInt32", "Int64", "UInt64")  # FMI 2.0 and 3.0 names
+    ARRAYS = True  # FMI 3.0 arrays; FMI 2.0 has none
 
     def __init__(self, path: str | Path, start: Mapping[str, float] | None = None, *,
                  instance_name: str | None = None, solver: SolveIvp | None = None) -> None:
@@ -114,12 +165,14 @@ class MeSubModel(FmuBase):
             raise ValueError(f"`solver` for model-exchange FMU {self.path} must be a SolveIvp "
                              f"(solve_ivp method, rtol, atol), got {solver!r}")
         self.solver = solver or SolveIvp()
+        self.CALL_PREFIX = "fmi3" if self.fmi_version == "3.0" else "fmi2"
         md = self.model_description
         self._nx = int(md.numberOfContinuousStates)
         self._nz = int(md.numberOfEventIndicators or 0)
         states = [d.variable.derivative for d in md.derivatives]  # in state-vector order
         index = {id(v): i for i, v in enumerate(states)}
-        self._out_state = [index.get(id(v)) for v in self._out_vars]
+        scalar = not any(v.dimensions for v in (*states, *self._out_vars))
+        self._out_state = [index.get(id(v)) if scalar else None for v in self._out_vars]
         self._fmu_state = bool(self.interface.canGetAndSetFMUstate)
         self.capabilities = Capabilities(
             can_save_state=self._fmu_state or self._nz == 0,
@@ -127,11 +180,13 @@ class MeSubModel(FmuBase):
             max_input_derivative_order=INPUT_ORDER,
             feedthrough=self._feedthrough(),
         )
-        n_in = len(self._in_vr)
+        self._setup_inputs()
+        self._out_n = [self.size(v) for v in self._out_vars]
+        self._float64_out = all(v.type != "Float32" for v in self._out_vars)
         self._t = 0.0
         self._x = np.zeros(self._nx)
-        self._u = np.array([p.start if p.start is not None else 0.0 for p in self.inputs], float)
-        self._du = np.zeros((INPUT_ORDER, n_in))
+        self._u = self._start_inputs()
+        self._du = np.zeros((INPUT_ORDER, len(self.inputs)))
         self._slope = False
         self._next_event: float | None = None
         self.events: list[float] = []
@@ -139,43 +194,73 @@ class MeSubModel(FmuBase):
         self._xbuf, self._xv = _buffer(self._nx)
         self._dxbuf, self._dxv = _buffer(self._nx)
         self._zbuf, self._zv = _buffer(self._nz)
-        # inputs of variability "continuous" go to the FMU at every evaluation; "discrete" ones
-        # may change only in event mode, so a new value is sent there (an event)
-        self._disc = np.array([i for i, v in enumerate(self._in_vars)
-                               if v.variability == "discrete"], dtype=int)
-        self._cont = np.array([i for i in range(n_in) if i not in set(self._disc.tolist())],
-                              dtype=int)
         self._ubuf, self._uv = _buffer(len(self._cont))
-        self._vrbuf = (c_uint * max(len(self._cont), 1))(*[self._in_vr[i] for i in self._cont])
-        self._sent_disc = self._u[self._disc].copy()
+        self._vrbuf = (c_uint * max(len(self._cont_vars), 1))(
+            *[v.valueReference for v in self._cont_vars])
+        self._sent_evt = self._u[self._evt].copy()
         self._z_key: tuple[float, bytes] | None = None
         self._z_last = np.zeros(self._nz)
-        self._callbacks = self._fmi2_callbacks()
+        self._c: _Calls | None = None
+        self._callbacks = self._fmi2_callbacks() if self.fmi_version == "2.0" else None
+
+    def _setup_inputs(self) -> None:
+        """Which input ports go to the FMU at every evaluation (``_cont``: real ports of
+        variability continuous) and which only in event mode, on change (``_evt``: real ports
+        of variability discrete, then the integer, boolean and enumeration ones)."""
+        port_vars = [v for v in self._in_vars for _ in range(self.size(v))]
+        n_real = len(port_vars)
+        self._cont = np.array([i for i, v in enumerate(port_vars)
+                               if v.variability != "discrete"], dtype=int)
+        disc_real = [i for i, v in enumerate(port_vars) if v.variability == "discrete"]
+        self._evt = np.array(disc_real + list(range(n_real, len(self.inputs))), dtype=int)
+        self._n_evt_real = len(disc_real)
+        self._cont_vars = [v for v in self._in_vars if v.variability != "discrete"]
+        self._evt_vars = [v for v in self._in_vars if v.variability == "discrete"]
+        # Float32 inputs (FMI 3.0) are set variable by variable, not through the Float64 buffer
+        self._float64_cont = all(v.type != "Float32" for v in self._cont_vars)
+
+    def _start_inputs(self) -> np.ndarray:
+        return np.array([p.start if p.start is not None else 0.0 for p in self.inputs], float)
 
     # -- SubModel API ------------------------------------------------------------------------------
     def initialize(self, t0: float) -> None:
         if self._fmu is not None:
             self.terminate()
         try:
-            fmu = self._load(FMU2Model)
-            fmu.instantiate(callbacks=self._callbacks, loggingOn=fmu_logging())
-            fmu.setupExperiment(tolerance=self.solver.rtol, startTime=t0)
-            set_values(fmu, self._start_values(inputs=False), "2.0")
-            fmu.enterInitializationMode()
-            set_values(fmu, self._start_values(inputs=True), "2.0")
-            fmu.exitInitializationMode()
+            fmu = self._instantiate(t0)
             self._initialized = True
             self._t = float(t0)
-            self._u = np.array([p.start if p.start is not None else 0.0 for p in self.inputs],
-                               float)
+            self._u = self._start_inputs()
             self._du = np.zeros_like(self._du)
-            self._sent_disc = self._u[self._disc].copy()  # set in initialization mode
+            self._sent_evt = self._u[self._evt].copy()  # set in initialization mode
             self.events = []
             self._iterate_discrete_states(t0)  # initialization ends in event mode
             fmu.enterContinuousTimeMode()
             self._x = self._read_states()
         except Exception as exc:
             raise self._fail_initialization(exc) from exc
+
+    def _instantiate(self, t0: float) -> Any:
+        """Load, instantiate and initialize the FMU (start values before, inputs inside
+        initialization mode); it is then in event mode, as both versions leave it."""
+        v = self.fmi_version
+        if v == "3.0":
+            fmu = self._load(FMU3Model)
+            fmu.instantiate(loggingOn=fmu_logging(),
+                            logMessage=lambda env, status, category, message:
+                            self._logger(status, message))
+            set_values(fmu, self._start_values(inputs=False), v)
+            fmu.enterInitializationMode(tolerance=self.solver.rtol, startTime=t0)
+        else:
+            fmu = self._load(FMU2Model)
+            fmu.instantiate(callbacks=self._callbacks, loggingOn=fmu_logging())
+            fmu.setupExperiment(tolerance=self.solver.rtol, startTime=t0)
+            set_values(fmu, self._start_values(inputs=False), v)
+            fmu.enterInitializationMode()
+        set_values(fmu, self._start_values(inputs=True), v)
+        fmu.exitInitializationMode()
+        self._c = _Calls(fmu, v, self._vrbuf, len(self._cont_vars), self._ubuf, len(self._cont))
+        return fmu
 
     def set_inputs(self, values: np.ndarray) -> None:
         self._u = np.array(values, dtype=float)
@@ -219,19 +304,34 @@ class MeSubModel(FmuBase):
             self._du = np.array([_taylor(du[j], du[j + 1:], dt) for j in range(len(du))])
 
     def get_outputs(self) -> np.ndarray:
+        fmu = self._live()
         try:
-            return np.array(self._live().getReal(self._out_vr))
+            if not self._out_vr:
+                reals = np.zeros(0)
+            elif self.fmi_version == "2.0":
+                reals = np.array(fmu.getReal(self._out_vr), dtype=float)
+            elif self._float64_out:
+                reals = np.array(fmu.getFloat64(self._out_vr, sum(self._out_n)), dtype=float)
+            else:
+                reals = np.concatenate([getattr(fmu, f"get{v.type}")([v.valueReference], n)
+                                        for v, n in zip(self._out_vars, self._out_n,
+                                                        strict=True)])
         except FMICallException as exc:
-            raise self._error("fmi2GetReal", exc) from None
+            raise self._error(exc.function, exc) from None
+        if self._out_disc:
+            return np.concatenate([reals, self._read_discrete()])
+        return reals
 
     def get_output_derivatives(self) -> np.ndarray:
         if not self.capabilities.provides_derivatives:
             return super().get_output_derivatives()
-        fmu = self._live()
+        self._live()
         try:
-            fmu.fmi2GetDerivatives(fmu.component, self._dxbuf, self._nx)
+            self._c.get_derivatives(self._dxbuf, self._nx)  # type: ignore[union-attr]
         except FMICallException as exc:
-            raise self._error("fmi2GetDerivatives", exc) from None
+            raise self._error(exc.function, exc) from None
+        if self._out_disc:  # integers and booleans are piecewise constant
+            return np.concatenate([self._dxv[self._out_state], np.zeros(len(self._out_disc))])
         return self._dxv[self._out_state].copy()
 
     def save_state(self) -> Any:
@@ -260,16 +360,16 @@ class MeSubModel(FmuBase):
             if len(self.events) > n_events:
                 raise self._error(f"cannot go back to t = {t!r}: events happened since, and "
                                   "the FMU does not offer FMU state to undo them")
-            fmu = self._live()
+            self._live()
             try:
-                fmu.fmi2SetTime(fmu.component, t)
+                self._c.set_time(t)  # type: ignore[union-attr]
                 self._xv[:] = x
-                fmu.fmi2SetContinuousStates(fmu.component, self._xbuf, self._nx)
+                self._c.set_states(self._xbuf, self._nx)  # type: ignore[union-attr]
                 self._send_inputs(u)
             except FMICallException as exc:
                 raise self._error(exc.function, exc) from None
         self._t, self._x, self._u, self._du = t, x.copy(), u.copy(), du.copy()
-        self._sent_disc = self._u[self._disc].copy()  # restored with the FMU state, or re-sent
+        self._sent_evt = self._u[self._evt].copy()  # restored with the FMU state, or re-sent
         self._next_event = next_event
         del self.events[n_events:]
         self._z_key = None
@@ -279,53 +379,59 @@ class MeSubModel(FmuBase):
         return _taylor(self._u, self._du, s - self._t)
 
     def _send_inputs(self, u: np.ndarray) -> None:
-        if not self._in_vr:
+        if not self.inputs:
             return
-        fmu = self._live()
-        self._uv[:] = u[self._cont]
+        self._live()
         try:
             if self._cont.size:
-                fmu.fmi2SetReal(fmu.component, self._vrbuf, self._cont.size, self._ubuf)
-            if self._disc.size and not np.array_equal(u[self._disc], self._sent_disc):
-                self._set_discrete(u[self._disc])
+                self._set_continuous(u[self._cont])
+            if self._evt.size and not np.array_equal(u[self._evt], self._sent_evt):
+                self._set_in_event_mode(u[self._evt])
         except FMICallException as exc:
             raise self._error(exc.function, exc) from None
 
-    def _set_discrete(self, values: np.ndarray) -> None:
-        """New values of discrete inputs: set in event mode, the event iterated (it may change
-        the states), back to continuous time."""
+    def _set_continuous(self, values: np.ndarray) -> None:
+        if self._float64_cont:
+            self._uv[:] = values
+            self._c.set_reals()  # type: ignore[union-attr]
+        else:
+            set_values(self._fmu, _by_variable(self._cont_vars, values, self.size), "3.0")
+
+    def _set_in_event_mode(self, values: np.ndarray) -> None:
+        """New values of inputs that may change only in event mode: set there, the event
+        iterated (it may change the states), back to continuous time."""
         fmu = self._fmu
         fmu.enterEventMode()
-        fmu.setReal([self._in_vr[i] for i in self._disc], [float(x) for x in values])
+        n = self._n_evt_real
+        set_values(fmu, _by_variable(self._evt_vars, values[:n], self.size), self.fmi_version)
+        if self._in_disc:
+            self._write_discrete(values[n:])
         self._iterate_discrete_states(self._t)
         fmu.enterContinuousTimeMode()
-        self._sent_disc = np.array(values, dtype=float)
+        self._sent_evt = np.array(values, dtype=float)
         self._z_key = None
         self._x = self._read_states()
 
     def _evaluate(self, s: float, y: np.ndarray) -> None:
         """Give the FMU time ``s``, states ``y`` and the inputs at ``s``."""
-        fmu = self._fmu
-        fmu.fmi2SetTime(fmu.component, s)
+        c = self._c
+        c.set_time(s)  # type: ignore[union-attr]
         if self._nx:
             self._xv[:] = y
-            fmu.fmi2SetContinuousStates(fmu.component, self._xbuf, self._nx)
+            c.set_states(self._xbuf, self._nx)  # type: ignore[union-attr]
         if self._slope and self._cont.size:
-            self._uv[:] = self._inputs_at(s)[self._cont]
-            fmu.fmi2SetReal(fmu.component, self._vrbuf, self._cont.size, self._ubuf)
+            self._set_continuous(self._inputs_at(s)[self._cont])
 
     def _rhs(self, s: float, y: np.ndarray) -> np.ndarray:
         self._evaluate(s, y)
-        fmu = self._fmu
-        fmu.fmi2GetDerivatives(fmu.component, self._dxbuf, self._nx)
+        self._c.get_derivatives(self._dxbuf, self._nx)  # type: ignore[union-attr]
         return self._dxv.copy()
 
     def _indicators(self, s: float, y: np.ndarray) -> np.ndarray:
         key = (s, y.tobytes())
         if key != self._z_key:  # solve_ivp asks once per event function at the same point
             self._evaluate(s, y)
-            fmu = self._fmu
-            fmu.fmi2GetEventIndicators(fmu.component, self._zbuf, self._nz)
+            self._c.get_indicators(self._zbuf, self._nz)  # type: ignore[union-attr]
             self._z_last, self._z_key = self._zv.copy(), key
         return self._z_last
 
@@ -405,7 +511,8 @@ class MeSubModel(FmuBase):
             return False
         enter, terminate = self._fmu.completedIntegratorStep(fmi2False)
         if terminate:
-            raise self._error(f"the FMU asked to terminate the simulation at t = {t!r}")
+            raise EndOfSimulation(self.name, f"terminateSimulation at t = {t:.9g} (after an "
+                                  "integrator step)")
         return bool(enter)
 
     def _handle_event(self, t: float) -> np.ndarray:
@@ -419,26 +526,42 @@ class MeSubModel(FmuBase):
 
     def _iterate_discrete_states(self, t: float) -> None:
         for _ in range(MAX_EVENT_ITERATIONS):
-            needed, terminate, _, _, timed, next_time = self._fmu.newDiscreteStates()
+            needed, terminate, _, _, timed, next_time = \
+                self._c.update_discrete()  # type: ignore[union-attr]
             if terminate:
-                raise self._error(f"the FMU asked to terminate the simulation at t = {t!r}")
+                raise EndOfSimulation(self.name, f"terminateSimulation at the event at "
+                                      f"t = {t:.9g}")
             self._next_event = float(next_time) if timed else None
             if not needed:
                 return
+        call = ("fmi3UpdateDiscreteStates" if self.fmi_version == "3.0"
+                else "fmi2NewDiscreteStates")
         raise self._error(f"no end of the event iteration at t = {t!r} after "
-                          f"{MAX_EVENT_ITERATIONS} calls of fmi2NewDiscreteStates")
+                          f"{MAX_EVENT_ITERATIONS} calls of {call}")
 
     def _read_states(self) -> np.ndarray:
         if self._nx == 0:
             return np.zeros(0)
-        fmu = self._fmu
-        fmu.fmi2GetContinuousStates(fmu.component, self._xbuf, self._nx)
+        self._c.get_states(self._xbuf, self._nx)  # type: ignore[union-attr]
         return self._xv.copy()
 
     def time_events(self) -> tuple[float, ...]:
         """None known in advance: an FMU announces one time event at a time, and each is handled
         inside the step it falls into."""
         return ()
+
+
+def _by_variable(variables: list[Any], values: np.ndarray,
+                 size: Callable[[Any], int]) -> list[tuple[Any, Any]]:
+    """Port values regrouped per variable (an array's elements as one list), for
+    :func:`~cosimstep.adapters.fmu_base.set_values`."""
+    pairs, i = [], 0
+    for v in variables:
+        n = size(v)
+        pairs.append((v, [float(x) for x in values[i:i + n]] if v.dimensions
+                      else float(values[i])))
+        i += n
+    return pairs
 
 
 def _buffer(n: int) -> tuple[Any, np.ndarray]:

@@ -6,11 +6,12 @@ FMU                    adapter                                      integrates
 FMI 2.0 co-simulation  :class:`~cosimstep.adapters.fmu.FmuSubModel`    the FMU's own solver
 FMI 3.0 co-simulation  :class:`~cosimstep.adapters.fmu3.Fmu3SubModel`  the FMU's own solver
 FMI 2.0 model exchange :class:`~cosimstep.adapters.fmu_me.MeSubModel`  SciPy ``solve_ivp``
+FMI 3.0 model exchange :class:`~cosimstep.adapters.fmu_me.MeSubModel`  SciPy ``solve_ivp``
 =====================  ===========================================  ==========================
 
 An FMU offering both kinds runs as co-simulation (its own solver) unless ``kind="ME"`` is asked
-for. FMI 1.0 and FMI 3.0 model exchange are refused by :func:`~cosimstep.adapters.fmu.check_fmu`
-with a message saying what is supported.
+for. FMI 1.0 and FMI 3.0 scheduled execution are refused by
+:func:`~cosimstep.adapters.fmu.check_fmu` with a message saying what is supported.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from cosimstep.adapters.fmu import (
     FMI2_CS,
     FMI2_ME,
     FMI3_CS,
+    FMI3_ME,
     SUPPORTED,
     FmuSubModel,
     check_fmu,
@@ -58,7 +60,7 @@ def open_fmu(path: str | Path, start: Mapping[str, float] | None = None, *,
     wanted = tuple(p for p in SUPPORTED if kind is None or p[1] == kind)
     md = check_fmu(path, wanted)
     chosen = fmu_interface(md, wanted)
-    if chosen != FMI2_ME and solver is not None:
+    if chosen not in (FMI2_ME, FMI3_ME) and solver is not None:
         raise ValueError(f"`solver` is only for model-exchange FMUs; {Path(path).name} runs as "
                          f"FMI {chosen[0]} co-simulation with its own solver")
     if chosen == FMI2_CS:

@@ -1,4 +1,4 @@
-"""Build FMUs (FMI 2.0 co-simulation and model exchange, FMI 3.0 co-simulation) from C sources.
+"""Build FMUs (FMI 2.0 and 3.0, co-simulation and model exchange) from C sources.
 
 cosimstep keeps the C sources of its test and example FMUs in the package (``fmu/c``), so an FMU is
 built on first use instead of being committed as a binary. :func:`build_fmu` compiles the sources
@@ -147,6 +147,7 @@ def _pendulum_bar_fmi3(bar: int) -> Recipe:
 
 
 _ME_HEADERS = (C_DIR / "fmi2.h", C_DIR / "fmi2me.h", C_DIR / "fmi2_me_frame.h")
+_FMI3_HEADERS = (C_DIR / "fmi3.h", C_DIR / "fmi3_model.h", C_DIR / "fmi3_frame.h")
 
 
 def _pendulum_bar_me(bar: int) -> Recipe:
@@ -174,6 +175,12 @@ RECIPES: dict[str, Recipe] = {
                     {"KIND": "1"}),
     "echo": Recipe(C_DIR / "echo.xml", (C_DIR / "discrete_io.c",), (C_DIR / "fmi2.h",),
                    {"KIND": "2"}),
+    # FMI 3.0 arrays: der(x) = A x + B u, y = C x + D u (model exchange and co-simulation)
+    "statespace3": Recipe(C_DIR / "statespace3.xml", (C_DIR / "statespace3.c",),
+                          _FMI3_HEADERS),
+    # FMI 3.0 model exchange only: a ball with two state events, an integer input and output,
+    # a boolean output and terminateSimulation
+    "bounce3": Recipe(C_DIR / "bounce3.xml", (C_DIR / "bounce3.c",), _FMI3_HEADERS),
 }
 
 

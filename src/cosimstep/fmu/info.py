@@ -1,9 +1,9 @@
 """What an FMU is, read from its ``modelDescription.xml`` (``cosimstep info MODEL.fmu``).
 
 Unlike :func:`cosimstep.adapters.fmu.check_fmu`, any FMI version and kind is described, and
-``runs_as`` says which cosimstep adapter runs it (FMI 2.0/3.0 co-simulation, or FMI 2.0 model
-exchange integrated by cosimstep) or why none can (FMI 1.0, FMI 3.0 model exchange, another
-platform). Nothing is unpacked.
+``runs_as`` says which cosimstep adapter runs it (FMI 2.0/3.0 co-simulation, or FMI 2.0/3.0
+model exchange integrated by cosimstep) or why none can (FMI 1.0, FMI 3.0 scheduled execution,
+another platform). Nothing is unpacked.
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ _FMI3_SPELLING = {"canGetAndSetFMUstate": "canGetAndSetFMUState",
                   "canSerializeFMUstate": "canSerializeFMUState"}
 _ADAPTERS = {("2.0", "CS"): "FmuSubModel (FMI 2.0 co-simulation)",
              ("3.0", "CS"): "Fmu3SubModel (FMI 3.0 co-simulation)",
-             ("2.0", "ME"): "MeSubModel (model exchange, integrated with solve_ivp)"}
+             ("2.0", "ME"): "MeSubModel (FMI 2.0 model exchange, integrated with solve_ivp)",
+             ("3.0", "ME"): "MeSubModel (FMI 3.0 model exchange, integrated with solve_ivp)"}
 
 
 def describe_fmu(path: str | Path) -> dict[str, Any]:

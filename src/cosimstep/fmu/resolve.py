@@ -68,7 +68,7 @@ def fmu_submodel(name: str, fmu: Path, overrides: Mapping[str, Any], where: str,
                  solver: Mapping[str, Any] | None = None,
                  interface: str | None = None) -> SubModel | None:
     """Create the sub-model of an FMU (:func:`~cosimstep.adapters.fmu_open.open_fmu`: FMI 2.0 or
-    3.0 co-simulation, or FMI 2.0 model exchange integrated by cosimstep) with checked overrides.
+    3.0 co-simulation or model exchange, the latter integrated by cosimstep) with checked overrides.
 
     Parameters
     ----------
@@ -128,20 +128,21 @@ def _checked_description(fmu: Path, solver: Mapping[str, Any] | None, where: str
     """The FMU's model description if cosimstep can run it (through interface ``kind``,
     ``"CS"`` or ``"ME"``, if given; with ``solver`` only for model exchange); ``None`` after
     recording a problem."""
-    from cosimstep.adapters.fmu import FMI2_ME, SUPPORTED, check_fmu, fmu_interface
+    from cosimstep.adapters.fmu import SUPPORTED, check_fmu, fmu_interface
 
     wanted = tuple(p for p in SUPPORTED if kind is None or p[1] == kind)
     try:
         md = check_fmu(fmu, wanted)
     except ValueError as exc:
-        fix = ("use an FMI 2.0 or 3.0 co-simulation or FMI 2.0 model-exchange FMU built for "
+        fix = ("use an FMI 2.0 or 3.0 co-simulation or model-exchange FMU built for "
                "this platform (`cosimstep info FILE.fmu` shows what it is)")
         if kind is not None:
             fix = "choose an interface the FMU offers (`cosimstep info FILE.fmu`), or drop " \
                 "`interface`"
         problems.append(Problem(f"{where}.interface" if kind else where, str(exc), fix))
         return None
-    if solver is not None and fmu_interface(md, wanted) != FMI2_ME:
+    chosen = fmu_interface(md, wanted)
+    if solver is not None and (chosen is None or chosen[1] != "ME"):
         problems.append(Problem(f"{where}.solver", "only a model-exchange FMU takes a solver",
                                 "remove it (a co-simulation FMU brings its own solver)"))
         return None

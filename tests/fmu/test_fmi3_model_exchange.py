@@ -1,0 +1,182 @@
+"""FMI 3.0 model exchange and arrays with cosimstep's own C FMUs (issue 20, items 2, 4 and 7):
+
+* `statespace3` — der(x) = A x + B u, y = C x + D u with 2-element array ports and 2 x 2 array
+  parameters, offering model exchange and co-simulation; its exact solution is a matrix
+  exponential.
+* `bounce3` — a model-exchange-only ball: state events on the floor (h) and at the apex (v), an
+  Int32 impact counter and a Boolean `falling` output, an Int32 input `kicks` that may change
+  only in event mode, and terminateSimulation after `max_bounces` impacts.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg as sl
+
+import cosimstep
+from cosimstep.adapters.fmu import FmuSubModel
+from cosimstep.adapters.fmu_me import MeSubModel
+from cosimstep.adapters.fmu_open import open_fmu
+from cosimstep.controllers import make_controller
+from cosimstep.fmu.build import build_fmu
+
+A = [[0.0, 1.0], [-9.0, -0.5]]
+X0 = [0.5, 1.0]
+G, E = 9.81, 0.7
+
+
+@pytest.fixture(scope="module")
+def ss(fmu_cache: Path) -> Path:
+    return build_fmu("statespace3", cache=fmu_cache)
+
+
+@pytest.fixture(scope="module")
+def ball(fmu_cache: Path) -> Path:
+    return build_fmu("bounce3", cache=fmu_cache)
+
+
+def free_response(times: np.ndarray, a: list[list[float]], x0: list[float]) -> np.ndarray:
+    return np.array([sl.expm(np.array(a) * t) @ x0 for t in times])
+
+
+@pytest.mark.parametrize(("kind", "bound"), [("ME", 1e-7), ("CS", 1e-10)])
+def test_array_parameters_and_ports(ss: Path, kind: str, bound: float) -> None:
+    """A and x set as arrays; y[1], y[2] equal the matrix exponential's x(t). Model exchange
+    is integrated by RK45 at rtol 1e-8 (measured 5.0e-9), co-simulation by the FMU's RK4 with
+    1 ms steps (4.2e-12)."""
+    model = open_fmu(ss, {"A": A, "x": X0}, kind=kind)
+    assert [p.name for p in model.inputs] == ["u[1]", "u[2]"]
+    assert [p.name for p in model.outputs] == ["y[1]", "y[2]"]
+    assert isinstance(model, MeSubModel) == (kind == "ME")
+    result = cosimstep.simulate(cosimstep.System().add("s", model), 2.0, cosimstep.Fixed(0.05))
+    assert result.success, result.message
+    exact = free_response(result.times, A, X0)
+    error = max(np.max(np.abs(result["s.y[1]"] - exact[:, 0])),
+                np.max(np.abs(result["s.y[2]"] - exact[:, 1])))
+    assert error < bound
+    # the array parameter was set: with the FMU's own A (0 1; -4 -0.4) the answer differs
+    assert np.max(np.abs(exact - free_response(result.times, [[0, 1], [-4, -0.4]], X0))) > 0.1
+
+
+def chain_toml(tmp_path: Path, interface: str) -> Path:
+    """Two statespace3 FMUs in a TOML file, a's whole output array into b's input array."""
+    text = f"""
+until = 2.0
+[models.a]
+type = "fmu"
+recipe = "statespace3"
+interface = "{interface}"
+start = {{ A = {A}, x = {X0} }}
+[models.b]
+type = "fmu"
+recipe = "statespace3"
+interface = "{interface}"
+start = {{ x = [0.0, 0.0], B = [[1.0, 0.0], [0.0, 1.0]] }}
+[[connections]]
+from = "a.y"
+to = "b.u"
+[master]
+name = "gauss-seidel"
+extrapolation = 2
+[controller]
+name = "fixed"
+step = 0.01
+"""
+    path = tmp_path / f"chain_{interface}.toml"
+    path.write_text(text)
+    return path
+
+
+def test_a_whole_array_connection_from_toml_matches_the_monolithic_solution(
+        tmp_path: Path) -> None:
+    """a (free oscillator) drives b (der(x_b) = A_b x_b + x_a) through `a.y -> b.u`; both
+    model exchange. Against the 4-state matrix exponential: measured 1.2e-6 at a step of
+    0.01 s (b's inputs are a's outputs interpolated by quadratics in Gauss-Seidel order); an
+    input left at zero would be off by 0.1."""
+    loaded = cosimstep.load_system(chain_toml(tmp_path, "model-exchange"))
+    assert {m.kind for m in loaded.system.models.values()} == {"ME"}
+    assert [(c.source, c.target) for c in loaded.system.connections] == [("a.y", "b.u")]
+    assert loaded.controller == {"name": "fixed", "step": 0.01}
+    result = cosimstep.simulate(loaded.system, loaded.until, cosimstep.Fixed(0.01), loaded.master)
+    assert result.success, result.message
+    a_b = np.array([[0, 1], [-4, -0.4]])
+    big = np.block([[np.array(A), np.zeros((2, 2))], [np.eye(2), a_b]])
+    exact = free_response(result.times, big.tolist(), [*X0, 0.0, 0.0])
+    error = max(np.max(np.abs(result[f"b.y[{i + 1}]"] - exact[:, 2 + i])) for i in range(2))
+    assert error < 1e-5
+
+
+def bounce_events(n: int) -> list[float]:
+    """Impact times of the ball from h = 1 at rest (restitution E)."""
+    t, speed, times = math.sqrt(2.0 / G), math.sqrt(2.0 * G), []
+    for _ in range(n):
+        times.append(t)
+        speed *= E
+        t += 2.0 * speed / G
+    return times
+
+
+def test_model_exchange_only_with_state_events_and_discrete_outputs(ball: Path) -> None:
+    """Impacts at the analytic times (to 1e-9 s), the apex between them as an event too; the
+    Int32 counter and the Boolean flag read at every point."""
+    model = open_fmu(ball)
+    assert isinstance(model, MeSubModel) and model.fmi_version == "3.0"
+    assert [(p.name, p.kind) for p in model.outputs] == [
+        ("h", "real"), ("v", "real"), ("bounces", "integer"), ("falling", "boolean")]
+    assert [(p.name, p.kind) for p in model.inputs] == [("kicks", "integer")]
+    result = cosimstep.simulate(cosimstep.System().add("b", model), 1.6, cosimstep.Fixed(0.01))
+    assert result.success, result.message
+    impacts = bounce_events(3)
+    apexes = [(a + b) / 2 for a, b in itertools.pairwise(impacts)]
+    assert np.allclose(model.events[:5], sorted(impacts + apexes), atol=1e-9, rtol=0)
+    expected = np.searchsorted(impacts, result.times, side="right")
+    assert np.array_equal(result["b.bounces"], expected.astype(float))
+    # falling between an apex and the next impact (points at least 1 ms away from events)
+    far = np.min(np.abs(result.times[:, None] - np.array(impacts + apexes)[None, :]), axis=1)
+    edges = sorted(impacts + apexes)
+    falling = np.searchsorted(edges, result.times) % 2 == 0  # before impact 1, after each apex
+    assert np.array_equal(result["b.falling"][far > 1e-3], falling[far > 1e-3].astype(float))
+
+
+def test_terminate_simulation_ends_the_run_ok(ball: Path) -> None:
+    result = cosimstep.simulate(cosimstep.System().add("b", open_fmu(ball, {"max_bounces": 2})),
+                                3.0, cosimstep.Fixed(0.01))
+    assert result.status == "ok" and "terminateSimulation" in result.message
+    second = bounce_events(2)[1]
+    assert second - 0.01 < result.times[-1] <= second
+
+
+def test_an_integer_input_is_set_in_event_mode(ball: Path, fmu_cache: Path) -> None:
+    """The stair's counter (1, 2, ... on the half seconds; FMI 2.0 co-simulation) into the
+    ball's `kicks` (FMI 3.0, settable only in event mode): every increment adds 2 m/s, so
+    before the first impact v(t) = 2 counter(t) - g t exactly."""
+    system = cosimstep.System()
+    system.add("st", FmuSubModel(build_fmu("stair", cache=fmu_cache), {"period": 0.5}))
+    system.add("b", open_fmu(ball))
+    system.connect("st.counter", "b.kicks")
+    result = cosimstep.simulate(system, 0.6, cosimstep.Fixed(0.01))
+    assert result.success, result.message
+    counter = 1 + np.floor(result.times / 0.5 + 1e-9)
+    assert np.array_equal(result["st.counter"], counter)
+    # A kick at t = 0 or 0.5 is an event there: the stored point is its left limit (the
+    # state the step ended with), the step from it starts with the kick.
+    at_event = np.isclose(result.times % 0.5, 0.0)
+    kicks = np.where(at_event, counter - 1, counter)
+    assert np.max(np.abs(result["b.v"] - (2.0 * kicks - G * result.times))) < 1e-9
+
+
+def test_adaptive_steps_roll_back_through_the_fmu_state(ball: Path) -> None:
+    """Under `pc` rejected steps restore FMI 3.0 FMU states; the impacts stay exact."""
+    model = open_fmu(ball)
+    result = cosimstep.simulate(cosimstep.System().add("b", model), 1.2,
+                                make_controller("pc", None, 1e-6))
+    assert result.success, result.message
+    impacts = bounce_events(2)
+    found = [t for t in model.events if min(abs(t - i) for i in impacts) < 1e-6]
+    assert np.allclose(found, impacts, atol=1e-9, rtol=0)
+    assert result["b.bounces"][-1] == 2.0
