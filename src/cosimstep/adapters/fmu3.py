@@ -6,8 +6,16 @@ Float64 (and Float32) inputs and outputs become ports with names, units and star
 ``fmi3GetFMUState``/``fmi3SetFMUState`` when ``canGetAndSetFMUState`` is declared; output
 derivatives (grey box) come from ``fmi3GetOutputDerivatives`` when ``maxOutputDerivativeOrder``
 is at least 1. FMI 3.0 has no input derivatives, so the FMU holds its inputs over a step
-(``max_input_derivative_order = 0``); event mode, early return and intermediate updates are not
-used.
+(``max_input_derivative_order = 0``).
+
+Event mode: an FMU declaring ``hasEventMode`` is instantiated with ``eventModeUsed`` and
+``earlyReturnAllowed``, so its internal events (state and time events inside a communication
+step) are handled at their time: ``fmi3DoStep`` returns early at the event with
+``eventHandlingNeeded``, the adapter runs the event (``fmi3EnterEventMode``,
+``fmi3UpdateDiscreteStates`` until no update is needed, ``fmi3EnterStepMode``) and continues the
+step from there, so one ``do_step`` of the master may be several FMU steps. The same happens
+at the end of initialization. :attr:`Fmu3SubModel.events` lists the event times. Intermediate
+updates are not used.
 """
 
 from __future__ import annotations
@@ -23,6 +31,9 @@ from fmpy.fmi3 import FMU3Slave
 from cosimstep.adapters.fmu_base import FMI3_CS, FmuBase, fmu_logging, set_values
 from cosimstep.errors import EndOfSimulation
 from cosimstep.submodel import Capabilities
+
+MAX_EVENT_ITERATIONS = 1000  # fmi3UpdateDiscreteStates calls at one event
+MAX_EARLY_RETURNS = 10000  # early returns within one communication step
 
 __all__ = ["Fmu3SubModel"]
 
@@ -54,6 +65,8 @@ class Fmu3SubModel(FmuBase):
         super().__init__(path, start, instance_name=instance_name)
         self.tolerance = tolerance
         cs = self.interface
+        self._event_mode = bool(getattr(cs, "hasEventMode", False))
+        self.events: list[float] = []
         self._float32_in = any(v.type == "Float32" for v in self._in_vars)
         self._float32_out = any(v.type == "Float32" for v in self._out_vars)
         # values per real input and output (arrays: their element counts)
@@ -74,16 +87,41 @@ class Fmu3SubModel(FmuBase):
             self.terminate()
         try:
             fmu = self._load(FMU3Slave)
-            fmu.instantiate(loggingOn=fmu_logging(),
-                            logMessage=lambda env, status, category, message:
-                            self._logger(status, message))
+            self._instantiate(fmu)
             set_values(fmu, self._start_values(inputs=False), "3.0")
             fmu.enterInitializationMode(tolerance=self.tolerance, startTime=t0)
             set_values(fmu, self._start_values(inputs=True), "3.0")
             fmu.exitInitializationMode()
+            self._initialized = True
+            self.events = []
+            if self._event_mode:  # initialization ends in event mode
+                self._update_discrete_states(t0)
+                fmu.enterStepMode()
+        except EndOfSimulation:
+            raise
         except Exception as exc:
             raise self._fail_initialization(exc) from exc
-        self._initialized = True
+
+    def _instantiate(self, fmu: FMU3Slave) -> None:
+        """Instantiate with event mode if the FMU declares it; an FMU that then refuses to be
+        instantiated (the Reference FMU Roberts declares ``hasEventMode`` but answers "Event
+        Mode is not supported") is instantiated again without, as importers that do not use
+        event mode always do."""
+        def instantiate(event_mode: bool) -> None:
+            fmu.instantiate(loggingOn=fmu_logging(), eventModeUsed=event_mode,
+                            earlyReturnAllowed=event_mode,
+                            logMessage=lambda env, status, category, message:
+                            self._logger(status, message))
+
+        if not self._event_mode:
+            instantiate(False)
+            return
+        try:
+            instantiate(True)
+        except Exception:
+            instantiate(False)
+            self._event_mode = False
+            self._log.clear()
 
     def _call(self, call: str, *args: Any) -> Any:
         try:
@@ -104,11 +142,38 @@ class Fmu3SubModel(FmuBase):
         self._call("setFloat64", self._in_vr, [float(x) for x in values])
 
     def do_step(self, t: float, h: float) -> None:
-        _, terminate, early, last = self._call("doStep", t, h)
-        if terminate:
-            raise EndOfSimulation(self.name, f"terminateSimulation in the step from t = {t:.9g}")
-        if early:
-            raise self._error(f"fmi3DoStep from t = {t} over {h} returned early at t = {last}")
+        end, now = t + h, t
+        for _ in range(MAX_EARLY_RETURNS):
+            event, terminate, early, last = self._call("doStep", now, end - now)
+            if terminate:
+                raise EndOfSimulation(self.name, f"terminateSimulation in the step from "
+                                      f"t = {now:.9g}")
+            reached = float(last) if early else end
+            if event and self._event_mode:
+                self._call("enterEventMode")
+                self._update_discrete_states(reached)
+                self._call("enterStepMode")
+                self.events.append(reached)
+            if not early or reached >= end:
+                return
+            if not self._event_mode or reached <= now:
+                raise self._error(f"fmi3DoStep from t = {now} over {end - now} returned early "
+                                  f"at t = {last}" + ("" if self._event_mode else
+                                                      " (early return was not allowed)"))
+            now = reached
+        raise self._error(f"more than {MAX_EARLY_RETURNS} early returns in the step from "
+                          f"t = {t} to {end}")
+
+    def _update_discrete_states(self, t: float) -> None:
+        for _ in range(MAX_EVENT_ITERATIONS):
+            needed, terminate, *_ = self._call("updateDiscreteStates")
+            if terminate:
+                raise EndOfSimulation(self.name, f"terminateSimulation at the event at "
+                                      f"t = {t:.9g}")
+            if not needed:
+                return
+        raise self._error(f"no end of the event iteration at t = {t!r} after "
+                          f"{MAX_EVENT_ITERATIONS} calls of fmi3UpdateDiscreteStates")
 
     def get_outputs(self) -> np.ndarray:
         if self._float32_out:
@@ -131,15 +196,18 @@ class Fmu3SubModel(FmuBase):
     def save_state(self) -> Any:
         if not self.capabilities.can_save_state:
             return super().save_state()
-        return self._save_fmu_state()
+        return self._save_fmu_state(), len(self.events)
 
     def restore_state(self, token: Any) -> None:
         if not self.capabilities.can_save_state:
             super().restore_state(token)
-        self._restore_fmu_state(token)
+        saved, n_events = token
+        self._restore_fmu_state(saved)
+        del self.events[n_events:]
 
     def serialize_state(self, token: Any) -> bytes:
-        return self._serialize_fmu_state(token)
+        saved, n_events = token
+        return n_events.to_bytes(8, "little") + self._serialize_fmu_state(saved)
 
     def deserialize_state(self, data: bytes) -> Any:
-        return self._deserialize_fmu_state(data)
+        return self._deserialize_fmu_state(data[8:]), int.from_bytes(data[:8], "little")

@@ -181,6 +181,9 @@ RECIPES: dict[str, Recipe] = {
     # FMI 3.0 model exchange only: a ball with two state events, an integer input and output,
     # a boolean output and terminateSimulation
     "bounce3": Recipe(C_DIR / "bounce3.xml", (C_DIR / "bounce3.c",), _FMI3_HEADERS),
+    # the same ball offering co-simulation too, with event mode and early return
+    "bounce3_cs": Recipe(C_DIR / "bounce3_cs.xml", (C_DIR / "bounce3.c",), _FMI3_HEADERS,
+                         {"BOUNCE_CS": "1"}),
 }
 
 

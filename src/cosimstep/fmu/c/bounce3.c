@@ -1,5 +1,7 @@
-/* A bouncing ball as an FMI 3.0 model-exchange-only FMU: cosimstep's test of FMI 3.0 model
- * exchange with state events and non-real ports.
+/* A bouncing ball as an FMI 3.0 FMU: cosimstep's test of FMI 3.0 model exchange with state
+ * events and non-real ports (recipe bounce3: model exchange only), and of co-simulation event
+ * mode (recipe bounce3_cs, built with -DBOUNCE_CS=1: co-simulation too, RK4 steps of at most
+ * max_dt, hasEventMode).
  *
  *   der(h) = v, der(v) = -g; at h = 0 falling: v := -e v, bounces := bounces + 1.
  * Event indicators h (impact) and v (apex: the boolean output `falling`, v <= 0, changes there). The
@@ -10,18 +12,26 @@
 
 #include "fmi3_model.h"
 
+#ifndef BOUNCE_CS
+#define BOUNCE_CS 0
+#endif
+#if BOUNCE_CS
+#define MODEL_TOKEN "{c4d2a9e7-6f13-4b58-8e0a-91b3f7d2c6e6}"
+#else
 #define MODEL_TOKEN "{c4d2a9e7-6f13-4b58-8e0a-91b3f7d2c6e5}"
+#endif
 #define HAS_MODEL_EXCHANGE 1
-#define HAS_CO_SIMULATION 0
+#define HAS_CO_SIMULATION BOUNCE_CS
 #define N_STATES 2
 #define N_INDICATORS 2
 
 enum { VR_TIME, VR_H, VR_DER_H, VR_V, VR_DER_V, VR_G, VR_E, VR_BOUNCES, VR_FALLING, VR_KICKS,
-       VR_KICK_SPEED, VR_MAX_BOUNCES, N_VR };
+       VR_KICK_SPEED, VR_MAX_BOUNCES, VR_MAX_DT, N_VR };
 /* the states first (h, v), then the rest; O_KICKS_SEEN is internal (no value reference) */
 enum { O_H, O_V, O_DER_H, O_DER_V, O_G, O_E, O_BOUNCES, O_FALLING, O_KICKS, O_KICK_SPEED,
-       O_MAX_BOUNCES, O_KICKS_SEEN, N_V };
+       O_MAX_BOUNCES, O_MAX_DT, O_KICKS_SEEN, N_V };
 #define X_OFFSET O_H
+#define MAX_DT_OFFSET O_MAX_DT
 
 typedef struct {
     double time;
@@ -41,6 +51,7 @@ static const Var VARS[N_VR] = {
     {T_INT32, O_KICKS, 1, K_DISCRETE_INPUT},
     {T_FLOAT64, O_KICK_SPEED, 1, K_PARAMETER},
     {T_INT32, O_MAX_BOUNCES, 1, K_PARAMETER},
+    {T_FLOAT64, O_MAX_DT, 1, K_PARAMETER},
 };
 
 static void model_start(State *s) {
@@ -50,11 +61,13 @@ static void model_start(State *s) {
     s->v[O_E] = 0.7;
     s->v[O_KICK_SPEED] = 2.0;
     s->v[O_FALLING] = 1.0;
+    s->v[O_MAX_DT] = 1e-3;
 }
 
 static const char *model_check(const State *s) {
     if (!(s->v[O_G] > 0.0)) return "g must be positive";
     if (!(s->v[O_E] >= 0.0 && s->v[O_E] <= 1.0)) return "e must be in [0, 1]";
+    if (!(s->v[O_MAX_DT] > 0.0)) return "max_dt must be positive";
     return NULL;
 }
 

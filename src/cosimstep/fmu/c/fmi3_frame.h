@@ -1,11 +1,18 @@
 /* The FMI 3.0 API around a small model, shared by cosimstep's FMI 3.0 test FMUs: model exchange,
  * and optionally co-simulation (a fixed-step RK4 of the same equations, inputs held over a step).
  *
+ * Co-simulation events: after every internal step the event indicators are compared with the
+ * previous ones; a change of sign is an event at the end of that internal step. Without event
+ * mode the FMU updates itself there (model_event) and goes on; with eventModeUsed it reports
+ * eventHandlingNeeded, returns early at that time if earlyReturnAllowed (else it finishes the
+ * step and the importer's event mode comes at its end), and the importer calls
+ * fmi3UpdateDiscreteStates in event mode.
+ *
  * Include once, after the model has included fmi3_model.h and defined (all static):
  *   MODEL_TOKEN, N_VR (value references 0 .. N_VR - 1), N_V (doubles in State.v),
  *   N_STATES, N_INDICATORS, X_OFFSET (the states are v[X_OFFSET .. X_OFFSET + N_STATES - 1]),
  *   HAS_MODEL_EXCHANGE and HAS_CO_SIMULATION (0 or 1); with co-simulation, MAX_DT_OFFSET (the
- *   index in v of the largest internal RK4 step) and no event indicators.
+ *   index in v of the largest internal RK4 step).
  *   VARS[N_VR]: each value reference's type, offset in v, element count and kind (Var below);
  *               value reference 0 is the independent variable time.
  *   void model_start(State *)                    start values
@@ -27,10 +34,6 @@
 
 #include "fmi3_model.h"
 
-#if HAS_CO_SIMULATION && N_INDICATORS > 0
-#error "the co-simulation part of fmi3_frame.h has no event handling"
-#endif
-
 #define STATE_MAGIC 0x33464d43u /* "CMF3": tags serialized states */
 
 typedef enum {
@@ -42,6 +45,10 @@ typedef struct {
     State s;
     Mode mode;
     int co_simulation;
+    int event_mode_used;       /* co-simulation: the importer handles events in event mode */
+    int early_return_allowed;  /* co-simulation: a step may end at an event */
+    int terminate;             /* an event asked to end the simulation */
+    double prez[N_INDICATORS > 0 ? N_INDICATORS : 1]; /* indicators after the last step */
     fmi3LogMessageCallback log;
     fmi3InstanceEnvironment env;
     fmi3Boolean logging;
@@ -59,6 +66,10 @@ static void log_status(const Instance *inst, fmi3Status status, const char *fmt,
 
 #define FAIL(inst, ...) (log_status((inst), fmi3Error, __VA_ARGS__), fmi3Error)
 #define AS(instance) ((Instance *)(instance))
+
+#if HAS_CO_SIMULATION
+static void update_inside(Instance *inst);
+#endif
 
 /* ---- instances and modes ------------------------------------------------------------------ */
 
@@ -113,13 +124,17 @@ fmi3Instance fmi3InstantiateCoSimulation(
     (void)instanceName;
     (void)resourcePath;
     (void)visible;
-    (void)eventModeUsed;
-    (void)earlyReturnAllowed;
+    Instance *inst;
     (void)requiredIntermediateVariables;
     (void)nRequiredIntermediateVariables;
     (void)intermediateUpdate;
     if (!HAS_CO_SIMULATION) return NULL;
-    return instantiate(instantiationToken, loggingOn, instanceEnvironment, logMessage, 1);
+    inst = instantiate(instantiationToken, loggingOn, instanceEnvironment, logMessage, 1);
+    if (inst) {
+        inst->event_mode_used = eventModeUsed;
+        inst->early_return_allowed = eventModeUsed && earlyReturnAllowed;
+    }
+    return inst;
 }
 
 fmi3Instance fmi3InstantiateScheduledExecution(
@@ -164,15 +179,20 @@ fmi3Status fmi3ExitInitializationMode(fmi3Instance instance) {
         return FAIL(inst, "fmi3ExitInitializationMode outside initialization mode");
     problem = model_check(&inst->s);
     if (problem) return FAIL(inst, "%s", problem);
-    inst->mode = inst->co_simulation ? MODE_STEP : MODE_EVENT;
+    /* model exchange, and co-simulation with event mode, continue in event mode */
+    inst->mode = inst->co_simulation && !inst->event_mode_used ? MODE_STEP : MODE_EVENT;
+#if HAS_CO_SIMULATION
+    if (inst->mode == MODE_STEP) update_inside(inst); /* the initial event, done by the FMU */
+#endif
     return fmi3OK;
 }
 
 fmi3Status fmi3EnterEventMode(fmi3Instance instance) {
     Instance *inst = AS(instance);
-    if (inst->co_simulation) return FAIL(inst, "fmi3EnterEventMode: no event mode in co-simulation");
-    if (inst->mode != MODE_CONTINUOUS && inst->mode != MODE_EVENT)
-        return FAIL(inst, "fmi3EnterEventMode outside continuous-time mode");
+    if (inst->co_simulation && !inst->event_mode_used)
+        return FAIL(inst, "fmi3EnterEventMode: instantiated without eventModeUsed");
+    if (inst->mode != MODE_CONTINUOUS && inst->mode != MODE_EVENT && inst->mode != MODE_STEP)
+        return FAIL(inst, "fmi3EnterEventMode outside continuous-time or step mode");
     inst->mode = MODE_EVENT;
     return fmi3OK;
 }
@@ -443,14 +463,26 @@ fmi3Status fmi3GetOutputDerivatives(fmi3Instance instance, const fmi3ValueRefere
 
 /* ---- FMU state ---------------------------------------------------------------------------- */
 
+/* An FMU state is an Instance of which the model state, the mode, a pending termination and the
+ * last event indicators (co-simulation) are used; serialized, those four in this order. */
+#define PREZ_BYTES sizeof(((Instance *)0)->prez)
+#define SAVED_BYTES (sizeof(State) + sizeof(Mode) + sizeof(int) + PREZ_BYTES)
+
+static void copy_saved(Instance *to, const Instance *from) {
+    to->s = from->s;
+    to->mode = from->mode;
+    to->terminate = from->terminate;
+    memcpy(to->prez, from->prez, PREZ_BYTES);
+}
+
 fmi3Status fmi3GetFMUState(fmi3Instance instance, fmi3FMUState *FMUState) {
     Instance *inst = AS(instance);
     Instance *copy = *FMUState; /* an earlier state is overwritten in place */
     if (!copy) {
-        copy = malloc(sizeof(Instance));
+        copy = calloc(1, sizeof(Instance));
         if (!copy) return FAIL(inst, "fmi3GetFMUState: out of memory");
     }
-    *copy = *inst;
+    copy_saved(copy, inst);
     *FMUState = copy;
     return fmi3OK;
 }
@@ -458,8 +490,7 @@ fmi3Status fmi3GetFMUState(fmi3Instance instance, fmi3FMUState *FMUState) {
 fmi3Status fmi3SetFMUState(fmi3Instance instance, fmi3FMUState FMUState) {
     Instance *inst = AS(instance);
     if (!FMUState) return FAIL(inst, "fmi3SetFMUState: no state given");
-    inst->s = ((const Instance *)FMUState)->s;
-    inst->mode = ((const Instance *)FMUState)->mode;
+    copy_saved(inst, FMUState);
     return fmi3OK;
 }
 
@@ -476,7 +507,7 @@ fmi3Status fmi3SerializedFMUStateSize(fmi3Instance instance, fmi3FMUState FMUSta
                                       size_t *size) {
     (void)instance;
     (void)FMUState;
-    *size = sizeof(unsigned int) + sizeof(State) + sizeof(Mode);
+    *size = sizeof(unsigned int) + SAVED_BYTES;
     return fmi3OK;
 }
 
@@ -484,11 +515,14 @@ fmi3Status fmi3SerializeFMUState(fmi3Instance instance, fmi3FMUState FMUState,
                                  fmi3Byte serialized[], size_t size) {
     const unsigned int magic = STATE_MAGIC;
     const Instance *saved = FMUState;
-    if (size != sizeof magic + sizeof(State) + sizeof(Mode))
+    fmi3Byte *at = serialized;
+    if (size != sizeof magic + SAVED_BYTES)
         return FAIL(AS(instance), "fmi3SerializeFMUState: buffer of %zu bytes", size);
-    memcpy(serialized, &magic, sizeof magic);
-    memcpy(serialized + sizeof magic, &saved->s, sizeof(State));
-    memcpy(serialized + sizeof magic + sizeof(State), &saved->mode, sizeof(Mode));
+    memcpy(at, &magic, sizeof magic);
+    memcpy(at += sizeof magic, &saved->s, sizeof(State));
+    memcpy(at += sizeof(State), &saved->mode, sizeof(Mode));
+    memcpy(at += sizeof(Mode), &saved->terminate, sizeof(int));
+    memcpy(at + sizeof(int), saved->prez, PREZ_BYTES);
     return fmi3OK;
 }
 
@@ -496,19 +530,21 @@ fmi3Status fmi3DeserializeFMUState(fmi3Instance instance, const fmi3Byte seriali
                                    size_t size, fmi3FMUState *FMUState) {
     Instance *inst = AS(instance);
     Instance *copy = *FMUState;
+    const fmi3Byte *at = serialized;
     unsigned int magic;
-    if (size != sizeof magic + sizeof(State) + sizeof(Mode))
+    if (size != sizeof magic + SAVED_BYTES)
         return FAIL(inst, "fmi3DeserializeFMUState: %zu bytes is not a state of this FMU", size);
-    memcpy(&magic, serialized, sizeof magic);
+    memcpy(&magic, at, sizeof magic);
     if (magic != STATE_MAGIC)
         return FAIL(inst, "fmi3DeserializeFMUState: bytes are not a state of this FMU");
     if (!copy) {
-        copy = malloc(sizeof(Instance));
+        copy = calloc(1, sizeof(Instance));
         if (!copy) return FAIL(inst, "fmi3DeserializeFMUState: out of memory");
     }
-    *copy = *inst;
-    memcpy(&copy->s, serialized + sizeof magic, sizeof(State));
-    memcpy(&copy->mode, serialized + sizeof magic + sizeof(State), sizeof(Mode));
+    memcpy(&copy->s, at += sizeof magic, sizeof(State));
+    memcpy(&copy->mode, at += sizeof(State), sizeof(Mode));
+    memcpy(&copy->terminate, at += sizeof(Mode), sizeof(int));
+    memcpy(copy->prez, at + sizeof(int), PREZ_BYTES);
     *FMUState = copy;
     return fmi3OK;
 }
@@ -526,6 +562,14 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance, fmi3Boolean *discrete
     if (inst->mode != MODE_EVENT) return FAIL(inst, "fmi3UpdateDiscreteStates outside event mode");
     refresh(inst);
     model_event(&inst->s, &e);
+#if HAS_CO_SIMULATION && N_INDICATORS > 0
+    if (inst->co_simulation) { /* the indicators after the update are the new reference */
+        double z[N_INDICATORS];
+        refresh(inst);
+        model_indicators(&inst->s, z);
+        memcpy(inst->prez, z, sizeof z);
+    }
+#endif
     *discreteStatesNeedUpdate = fmi3False;
     *terminateSimulation = e.terminate != 0;
     *nominalsOfContinuousStatesChanged = fmi3False;
@@ -538,8 +582,8 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance, fmi3Boolean *discrete
 
 fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance instance) {
     Instance *inst = AS(instance);
-    if (inst->mode != MODE_EVENT)
-        return FAIL(inst, "fmi3EnterContinuousTimeMode outside event mode");
+    if (inst->mode != MODE_EVENT || inst->co_simulation)
+        return FAIL(inst, "fmi3EnterContinuousTimeMode outside event mode of model exchange");
     inst->mode = MODE_CONTINUOUS;
     return fmi3OK;
 }
@@ -622,33 +666,60 @@ fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance instance, size_t *n) {
 /* ---- co-simulation ------------------------------------------------------------------------ */
 
 fmi3Status fmi3EnterStepMode(fmi3Instance instance) {
-    NOT_PROVIDED("fmi3EnterStepMode (no event mode)");
+    Instance *inst = AS(instance);
+    if (!inst->co_simulation || inst->mode != MODE_EVENT)
+        return FAIL(inst, "fmi3EnterStepMode outside event mode of co-simulation");
+    inst->mode = MODE_STEP;
+    return fmi3OK;
 }
 
 #if HAS_CO_SIMULATION
-/* RK4 over [t, t + h] in n = ceil(h / max_dt) equal steps, inputs held. */
-static void rk4(State *s, double h, double max_dt) {
+/* One RK4 step from s->time to t_end, inputs held. */
+static void rk4(State *s, double t_end) {
     double x0[N_STATES > 0 ? N_STATES : 1], k[4][N_STATES > 0 ? N_STATES : 1];
     const double w[4] = {1.0, 2.0, 2.0, 1.0}, c[4] = {0.0, 0.5, 0.5, 1.0};
-    const long n = (long)fmax(1.0, ceil(h / max_dt - 1e-9));
-    const double dt = h / (double)n, t0 = s->time;
+    const double ts = s->time, dt = t_end - ts;
     double *x = &s->v[X_OFFSET];
-    for (long step = 0; step < n; step++) {
-        const double ts = t0 + (double)step * dt;
-        memcpy(x0, x, sizeof x0);
-        for (int stage = 0; stage < 4; stage++) {
-            for (int i = 0; i < N_STATES; i++)
-                x[i] = x0[i] + (stage ? c[stage] * dt * k[stage - 1][i] : 0.0);
-            s->time = ts + c[stage] * dt;
-            model_derivatives(s, k[stage]);
-        }
-        for (int i = 0; i < N_STATES; i++) {
-            double sum = 0.0;
-            for (int stage = 0; stage < 4; stage++) sum += w[stage] * k[stage][i];
-            x[i] = x0[i] + dt / 6.0 * sum;
-        }
+    memcpy(x0, x, sizeof x0);
+    for (int stage = 0; stage < 4; stage++) {
+        for (int i = 0; i < N_STATES; i++)
+            x[i] = x0[i] + (stage ? c[stage] * dt * k[stage - 1][i] : 0.0);
+        s->time = ts + c[stage] * dt;
+        model_derivatives(s, k[stage]);
     }
-    s->time = t0 + h;
+    for (int i = 0; i < N_STATES; i++) {
+        double sum = 0.0;
+        for (int stage = 0; stage < 4; stage++) sum += w[stage] * k[stage][i];
+        x[i] = x0[i] + dt / 6.0 * sum;
+    }
+    s->time = t_end;
+}
+
+/* Whether an event indicator changed sign since the last internal step (and remember them). */
+static int crossed(Instance *inst) {
+    int found = 0;
+#if N_INDICATORS > 0
+    double z[N_INDICATORS];
+    refresh(inst);
+    model_indicators(&inst->s, z);
+    for (int i = 0; i < N_INDICATORS; i++) {
+        /* leaving an indicator of exactly 0 (where an event left it) is not a crossing */
+        found |= (inst->prez[i] < 0.0 && z[i] > 0.0) || (inst->prez[i] > 0.0 && z[i] <= 0.0);
+        inst->prez[i] = z[i];
+    }
+#else
+    (void)inst;
+#endif
+    return found;
+}
+
+/* The discrete update at an event inside a step (no event mode). */
+static void update_inside(Instance *inst) {
+    Event e = {0, 0, 0, 0.0};
+    refresh(inst);
+    model_event(&inst->s, &e);
+    inst->terminate = e.terminate;
+    (void)crossed(inst); /* the indicators after the update are the new reference */
 }
 #endif
 
@@ -664,12 +735,30 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
     if (!(communicationStepSize > 0.0))
         return FAIL(inst, "fmi3DoStep: step size %g is not positive", communicationStepSize);
     inst->s.time = currentCommunicationPoint;
-#if HAS_CO_SIMULATION
-    rk4(&inst->s, communicationStepSize, inst->s.v[MAX_DT_OFFSET]);
-#endif
     *eventHandlingNeeded = fmi3False;
     *terminateSimulation = fmi3False;
     *earlyReturn = fmi3False;
+#if HAS_CO_SIMULATION
+    {
+        /* n = ceil(h / max_dt) equal internal steps, inputs held */
+        const double t0 = currentCommunicationPoint, h = communicationStepSize;
+        const long n = (long)fmax(1.0, ceil(h / inst->s.v[MAX_DT_OFFSET] - 1e-9));
+        for (long i = 1; i <= n && !inst->terminate; i++) {
+            rk4(&inst->s, i == n ? t0 + h : t0 + (double)i * (h / (double)n));
+            if (!crossed(inst)) continue;
+            if (!inst->event_mode_used) {
+                update_inside(inst);
+            } else {
+                *eventHandlingNeeded = fmi3True;
+                if (inst->early_return_allowed && i < n) {
+                    *earlyReturn = fmi3True;
+                    break;
+                }
+            }
+        }
+    }
+#endif
+    *terminateSimulation = inst->terminate;
     *lastSuccessfulTime = inst->s.time;
     return fmi3OK;
 }
