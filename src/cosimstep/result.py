@@ -10,6 +10,7 @@ import numpy as np
 
 from cosimstep.events import Event
 from cosimstep.reference import ErrorReport
+from cosimstep.symbols import SYMBOLS, TEXT_UNITS, decoded_frame
 
 
 @dataclass
@@ -113,10 +114,22 @@ class SimulationResult:
         out["models"] = {n: m.to_dict() for n, m in self.models.items()}
         return out
 
-    def to_pandas(self):
-        import pandas as pd
+    def text(self, name: str) -> list[str | bytes]:
+        """The values of a String or Binary output (its column holds codes,
+        :mod:`cosimstep.symbols`)."""
+        codes = self[name]
+        if self.units[self.names.index(name)] not in TEXT_UNITS:
+            raise ValueError(f"'{name}' is not a String or Binary output")
+        return [SYMBOLS.value(c) for c in codes]
 
-        return pd.DataFrame(self.values, index=pd.Index(self.times, name="t"), columns=self.names)
+    def symbol_table(self) -> dict[int, str | bytes]:
+        """Code → value for every code in the run's String and Binary columns."""
+        coded = [i for i, u in enumerate(self.units) if u in TEXT_UNITS]
+        return SYMBOLS.table(self.values[:, coded].ravel().tolist()) if coded else {}
+
+    def to_pandas(self):
+        """The values as a DataFrame indexed by time; String and Binary columns decoded."""
+        return decoded_frame(self.values, self.times, self.names, self.units)
 
 
 __all__ = ["ModelStats", "SimulationResult"]

@@ -520,7 +520,8 @@ class Run:
             amend(result)
         if sink is not None:
             sink.finish(result.status, result.message, result.t_end, result.wall_s,
-                        result.summary(), result.calls, result.time_in_models)
+                        result.summary(), result.calls, result.time_in_models,
+                        symbols=result.symbol_table())
             sink.close()
         if failure is not None and raise_on_failure:
             raise failure

@@ -32,7 +32,7 @@ import socket
 import sqlite3
 import time
 from array import array
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -66,6 +66,8 @@ CREATE TABLE IF NOT EXISTS event(
 CREATE TABLE IF NOT EXISTS calls(
     run_id INTEGER, model TEXT, calls INTEGER, time_in_model_s REAL,
     PRIMARY KEY(run_id, model));
+CREATE TABLE IF NOT EXISTS symbol(
+    run_id INTEGER, code INTEGER, value BLOB, PRIMARY KEY(run_id, code)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS checkpoint(
     run_id INTEGER PRIMARY KEY, t REAL, point INTEGER, attempt_seq INTEGER, created REAL,
     state BLOB, note TEXT);
@@ -246,8 +248,14 @@ class Store:
 
     def finish(self, status: str, message: str, t_end: float, wall_s: float,
                summary: dict[str, Any], calls: dict[str, int],
-               time_in_models: dict[str, float]) -> None:
+               time_in_models: dict[str, float],
+               symbols: Mapping[int, str | bytes] | None = None) -> None:
+        """End the run: its status, summary and calls, and the values of the codes its
+        String and Binary columns hold (:mod:`cosimstep.symbols`; text stored as TEXT, bytes
+        as BLOB)."""
         self.flush()
+        self._db.executemany("INSERT OR REPLACE INTO symbol VALUES (?, ?, ?)",
+                             [(self.run_id, c, v) for c, v in (symbols or {}).items()])
         self._db.executemany("INSERT INTO calls VALUES (?, ?, ?, ?)",
                              [(self.run_id, m, calls[m], time_in_models[m]) for m in calls])
         self._db.execute(
@@ -329,12 +337,19 @@ class StoredRun:
     common grid in ``times``/``values`` interpolates the other sub-models' outputs there)."""
     events: list[dict[str, Any]] = field(default_factory=list)
     """Events of discrete-event sub-models: ``{"t", "source", "kind", "payload"}``."""
+    symbols: dict[int, str | bytes] = field(default_factory=dict)
+    """Code → value of the run's String and Binary columns (:mod:`cosimstep.symbols`)."""
+
+    def text(self, name: str) -> list[str | bytes]:
+        """The values of a String or Binary output, decoded with the run's stored codes."""
+        return [self.symbols[int(c)] for c in self.values[:, self.names.index(name)]]
 
     def to_pandas(self):
-        """Exchanged values as a DataFrame indexed by time (needs pandas)."""
-        import pandas as pd
+        """Exchanged values as a DataFrame indexed by time (needs pandas); String and Binary
+        columns decoded."""
+        from cosimstep.symbols import decoded_frame
 
-        return pd.DataFrame(self.values, index=pd.Index(self.times, name="t"), columns=self.names)
+        return decoded_frame(self.values, self.times, self.names, self.units, self.symbols)
 
 
 def runs(path: str | Path) -> list[tuple[int, str, str]]:
@@ -391,7 +406,7 @@ def delete_run(path: str | Path, run_id: int) -> None:
     with sqlite3.connect(path) as db:
         db.executescript(SCHEMA)  # a store from before some tables existed
         for name in ("variable", "point", "sample", "reference", "attempt", "own_point",
-                     "event", "calls"):
+                     "event", "calls", "symbol", "checkpoint"):
             db.execute(f"DELETE FROM {name} WHERE run_id=?", (run_id,))
         db.execute("DELETE FROM run WHERE id=?", (run_id,))
 
@@ -423,6 +438,7 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
                   for t, src, kind, payload, late in db.execute(
                       "SELECT t, source, kind, payload_json, late FROM event WHERE run_id=? "
                       "ORDER BY seq", (run_id,))]
+        symbols = dict(db.execute("SELECT code, value FROM symbol WHERE run_id=?", (run_id,)))
     finally:
         db.close()
     return StoredRun(
@@ -431,7 +447,8 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
         names=[v[0] for v in var], units=[v[1] for v in var], times=times, values=values,
         reference=reference,
         attempts=np.array([(a[1], a[2], a[3]) for a in att], dtype=float).reshape(-1, 3),
-        attempt_models=[a[0] for a in att], own_points=own_points, events=events)
+        attempt_models=[a[0] for a in att], own_points=own_points, events=events,
+        symbols=symbols)
 
 
 def _last_run_id(db: sqlite3.Connection, path: Path) -> int:

@@ -43,10 +43,12 @@ class Port:
     description: str = ""
     discrete: bool = False
     kind: str = "real"
-    """What the value is: ``"real"``, ``"integer"`` (FMI Integer, Enumeration) or
-    ``"boolean"`` (0 or 1). Every value travels as a float (exact for integers up to 2^53);
-    the kind says what a receiver may be given: an integer or boolean input takes only an
-    output of its own kind (or an integer into a boolean), unless the connection rounds."""
+    """What the value is: ``"real"``, ``"integer"`` (FMI Integer, Enumeration),
+    ``"boolean"`` (0 or 1), ``"string"`` or ``"binary"`` (FMI String, Binary: the float is a
+    code, :mod:`cosimstep.symbols`). Every value travels as a float (exact for integers up to
+    2^53); the kind says what a receiver may be given: an integer or boolean input takes only an
+    output of its own kind (or an integer into a boolean), unless the connection rounds; a
+    string or binary input only an output of its own kind, unscaled."""
 
 
 @dataclass(frozen=True)

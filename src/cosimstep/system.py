@@ -40,14 +40,27 @@ class Connection:
 def _kind_mismatch(out_kind: str, in_kind: str, c: Connection) -> str:
     """Why a value of ``out_kind`` cannot feed an input of ``in_kind`` unrounded ("" if it
     can): integers and booleans convert to reals and booleans to integers; the other way, or
-    through a gain or offset, the values need not be whole numbers."""
+    through a gain or offset, the values need not be whole numbers. Strings and byte strings
+    (codes) go only to their own kind, unscaled and unrounded."""
+    scaled = c.gain != 1.0 or c.offset != 0.0
+    if out_kind in _CODED or in_kind in _CODED:
+        if out_kind == in_kind and not scaled and not c.round:
+            return ""
+        how = " scaled or rounded by the connection" if out_kind == in_kind else ""
+        return f"{_article(out_kind)} {out_kind} output{how} feeds {in_kind} input '{c.target}'"
     if in_kind == "real" or c.round:
         return ""
-    scaled = c.gain != 1.0 or c.offset != 0.0
     if not scaled and (out_kind == in_kind or (out_kind, in_kind) == ("boolean", "integer")):
         return ""
     what = f"{out_kind} output" + (" scaled by the connection" if scaled else "")
-    return f"a {what} feeds {in_kind} input '{c.target}'"
+    return f"{_article(out_kind)} {what} feeds {in_kind} input '{c.target}'"
+
+
+_CODED = ("string", "binary")  # kinds whose floats are codes (cosimstep.symbols)
+
+
+def _article(word: str) -> str:
+    return "an" if word[0] in "aeiou" else "a"
 
 
 def split_address(address: str) -> tuple[str, str]:
@@ -161,13 +174,18 @@ class System:
                           f"({fed[key].source})", "an input takes exactly one connection")
         else:
             fed[key] = c
+        coded = {out_port.kind, in_port.kind} & set(_CODED)
         try:
-            conversion(out_port.unit, in_port.unit)
+            if not coded:  # text and bytes have no unit; their kinds are checked below
+                conversion(out_port.unit, in_port.unit)
         except UnitError as exc:
             yield Problem(c.label, f"unit mismatch: {exc}",
                           "connect ports of compatible units or fix the unit declarations")
         mismatch = _kind_mismatch(out_port.kind, in_port.kind, c)
-        if mismatch:
+        if mismatch and coded:
+            yield Problem(c.label, mismatch, f"connect a {in_port.kind} output, without gain, "
+                          "offset or rounding")
+        elif mismatch:
             yield Problem(c.label, mismatch, "connect an output of the same kind, or declare "
                           "the rounding on the connection (round = true)")
 

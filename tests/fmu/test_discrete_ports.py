@@ -15,6 +15,7 @@ import cosimstep
 from cosimstep.adapters.fmu import FmuSubModel
 from cosimstep.controllers import make_controller
 from cosimstep.fmu.build import build_fmu
+from cosimstep.symbols import SYMBOLS
 
 
 @pytest.fixture(scope="module")
@@ -26,18 +27,22 @@ def stair_into_echo(fmus: dict[str, Path], period: float = 0.5) -> cosimstep.Sys
     system = cosimstep.System()
     system.add("st", FmuSubModel(fmus["stair"], {"period": period}))
     system.add("ec", FmuSubModel(fmus["echo"]))
-    system.connect("st.counter", "ec.n").connect("st.odd", "ec.b")
+    system.connect("st.counter", "ec.n").connect("st.odd", "ec.b").connect("st.word", "ec.s")
     return system
 
 
 def test_ports_have_their_kinds(fmus: dict[str, Path]) -> None:
     st, ec = FmuSubModel(fmus["stair"]), FmuSubModel(fmus["echo"])
     assert st.inputs == () and [(p.name, p.kind, p.discrete, p.start) for p in st.outputs] == [
-        ("counter", "integer", True, 1.0), ("odd", "boolean", True, 1.0)]
-    assert [(p.name, p.kind) for p in ec.inputs] == [("n", "integer"), ("b", "boolean")]
-    assert [(p.name, p.kind, p.discrete) for p in ec.outputs] == [
-        ("x", "real", False), ("n_out", "integer", True), ("b_out", "boolean", True)]
-    assert ec.capabilities.feedthrough == {"x": (), "n_out": ("n",), "b_out": ("b",)}
+        ("counter", "integer", True, 1.0), ("odd", "boolean", True, 1.0),
+        ("word", "string", True, SYMBOLS.code("odd"))]
+    assert [(p.name, p.kind) for p in ec.inputs] == [("n", "integer"), ("b", "boolean"),
+                                                     ("s", "string")]
+    assert [(p.name, p.kind, p.discrete, p.unit) for p in ec.outputs] == [
+        ("x", "real", False, "1"), ("n_out", "integer", True, "1"),
+        ("b_out", "boolean", True, "1"), ("s_out", "string", True, "text")]
+    assert ec.capabilities.feedthrough == {"x": (), "n_out": ("n",), "b_out": ("b",),
+                                           "s_out": ("s",)}
 
 
 def test_a_stair_alone_equals_fmpy(fmus: dict[str, Path]) -> None:
@@ -64,6 +69,8 @@ def test_integer_steps_arrive_at_the_event_times(fmus: dict[str, Path], master: 
     assert np.array_equal(result["st.counter"], counter)
     assert np.array_equal(result["ec.n_out"], counter)  # not one step late
     assert np.array_equal(result["ec.b_out"], counter % 2)
+    words = ["odd" if c % 2 else "even" for c in counter]
+    assert result.text("st.word") == words and result.text("ec.s_out") == words
     # x(t) = integral of the counter held over each step (1 on [0, 0.5), 2 on [0.5, 1), ...)
     steps = np.arange(len(t) - 1)
     x = np.concatenate([[0.0], np.cumsum(0.01 * (1 + np.floor(steps * 0.01 / 0.5 + 1e-12)))])
@@ -89,11 +96,14 @@ def test_connections_are_type_checked(fmus: dict[str, Path], examples: Path) -> 
     system.add("st", FmuSubModel(fmus["stair"]))
     system.connect("bar1.theta", "ec.n")  # real into integer: refused
     system.connect("st.counter", "ec.b", gain=2.0)  # scaled into a boolean: refused
+    system.connect("st.counter", "ec.s")  # a number into a string: refused, even rounded
     problems = [str(p) for p in system.problems()]
-    assert len(problems) == 2
+    assert len(problems) == 3
     assert "a real output feeds integer input 'ec.n'" in problems[0]
     assert "integer output scaled by the connection feeds boolean input 'ec.b'" in problems[1]
-    assert all("round = true" in p for p in problems)
+    assert "an integer output feeds string input 'ec.s'" in problems[2]
+    assert all("round = true" in p for p in problems[:2])
+    assert "connect a string output, without gain, offset or rounding" in problems[2]
 
 
 def test_a_declared_rounding_feeds_an_integer_input(fmus: dict[str, Path],
@@ -161,7 +171,7 @@ def test_string_and_boolean_parameters_from_the_system_file(tmp_path: Path) -> N
     try:
         assert model._fmu.getString([0]) == ["a name"]
         model.do_step(0.0, 0.3)
-        assert list(model.get_outputs()) == [2.0, 0.0]  # period 0.25 applied
+        assert list(model.get_outputs()) == [2.0, 0.0, SYMBOLS.code("even")]  # period 0.25
     finally:
         model.terminate()
     (tmp_path / "bad.toml").write_text(text.replace('"a name"', "3"))
@@ -196,3 +206,21 @@ def test_array_values_are_flattened_row_major() -> None:
     assert array_values(0.5, 3) == [0.5, 0.5, 0.5]
     with pytest.raises(ValueError, match="2 values for an array of 3"):
         array_values([1.0, 2.0], 3)
+
+
+def test_strings_are_stored_and_read_back(fmus: dict[str, Path], tmp_path: Path) -> None:
+    """String ports travel as codes (cosimstep.symbols); the store keeps the codes' values,
+    so a stored run decodes to the same words, also through pandas."""
+    from cosimstep.store import read_run
+
+    db = tmp_path / "words.db"
+    result = cosimstep.simulate(stair_into_echo(fmus), 2.0, cosimstep.Fixed(0.1), store=db)
+    assert result.success, result.message
+    stored = read_run(db)
+    assert stored.text("ec.s_out") == result.text("ec.s_out")
+    assert set(stored.text("st.word")) == {"odd", "even"}
+    frame = stored.to_pandas()
+    assert list(frame["st.word"].iloc[:6]) == ["odd"] * 5 + ["even"]
+    assert list(result.to_pandas()["ec.s_out"]) == result.text("ec.s_out")
+    with pytest.raises(ValueError, match="not a String or Binary output"):
+        result.text("st.counter")

@@ -93,7 +93,7 @@ class FmuSubModel(FmuBase):
 
     SUPPORTED = (FMI2_CS,)
     CALL_PREFIX = "fmi2"
-    DISCRETE_TYPES = ("Integer", "Boolean", "Enumeration")
+    DISCRETE_TYPES = ("Integer", "Boolean", "Enumeration", "String")
 
     def __init__(self, path: str | Path, start: Mapping[str, float] | None = None, *,
                  instance_name: str | None = None,

@@ -56,7 +56,7 @@ class Fmu3SubModel(FmuBase):
 
     SUPPORTED = (FMI3_CS,)
     DISCRETE_TYPES = ("Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64",
-                      "Boolean", "Enumeration")
+                      "Boolean", "Enumeration", "String", "Binary")
     CALL_PREFIX = "fmi3"
     ARRAYS = True
 

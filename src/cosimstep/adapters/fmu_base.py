@@ -39,11 +39,13 @@ from fmpy.model_description import ModelDescription, ModelVariable, ValidationEr
 from cosimstep.archive import escapes, new_folder, size_problems
 from cosimstep.errors import EndOfSimulation
 from cosimstep.submodel import Port, SubModel
+from cosimstep.symbols import SYMBOLS
 
 STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
 REAL_TYPES = ("Real", "Float64", "Float32")  # exchanged through ports
 _SETTABLE_TYPES = (*REAL_TYPES, "Integer", "Enumeration", "Boolean", "Int8", "UInt8", "Int16",
-                   "UInt16", "Int32", "UInt32", "Int64", "UInt64", "String")
+                   "UInt16", "Int32", "UInt32", "Int64", "UInt64", "String", "Binary")
+_CODED = {"String": ("string", "text"), "Binary": ("binary", "bytes")}  # kind, unit
 _SETTABLE_BEFORE_INIT = ("exact", "approx")
 
 __all__ = ["FMI2_CS", "FMI2_ME", "FMI3_CS", "FMI3_ME", "STATUS", "SUPPORTED", "FmuBase", "FmuError",
@@ -315,6 +317,10 @@ class FmuBase(SubModel):
 
     def _port(self, v: ModelVariable) -> Port:
         value = self.start[v.name][1] if v.name in self.start else v.start
+        if v.type in _CODED:  # text and bytes: a code into cosimstep.symbols.SYMBOLS
+            kind, unit = _CODED[v.type]
+            start = SYMBOLS.code(_as_binary(value) if v.type == "Binary" else value)
+            return Port(v.name, unit, start, v.description or "", discrete=True, kind=kind)
         if v.type not in REAL_TYPES:
             # integers, booleans, enumerations: discrete by nature, dimensionless
             kind = "boolean" if v.type == "Boolean" else "integer"
@@ -346,14 +352,16 @@ class FmuBase(SubModel):
 
     # -- integer, boolean and enumeration ports -------------------------------------------------
     def _write_discrete(self, values: Sequence[float]) -> None:
-        """Set the integer, enumeration and boolean inputs (:attr:`_in_disc`) from the master's
-        floats: rounded to the nearest integer (a boolean: nonzero); one call per FMI type."""
+        """Set the integer, enumeration, boolean, string and binary inputs (:attr:`_in_disc`)
+        from the master's floats: rounded to the nearest integer (a boolean: nonzero), codes
+        decoded (:mod:`cosimstep.symbols`); one call per FMI type."""
         groups: dict[str, tuple[list[int], list[Any]]] = {}
         for v, x in zip(self._in_disc, values, strict=True):
             name, kind = setter_name(v, self.fmi_version)
             vrs, xs = groups.setdefault(name, ([], []))
             vrs.append(v.valueReference)
-            xs.append(kind(round(float(x))))
+            xs.append(SYMBOLS.text(x) if v.type == "String" else SYMBOLS.binary(x)
+                      if v.type == "Binary" else kind(round(float(x))))
         fmu = self._live()
         for name, (vrs, xs) in groups.items():
             try:
@@ -362,8 +370,8 @@ class FmuBase(SubModel):
                 raise self._error(exc.function, exc) from None
 
     def _read_discrete(self) -> np.ndarray:
-        """The integer, enumeration and boolean outputs (:attr:`_out_disc`) as floats, in port
-        order; one call per FMI type."""
+        """The integer, enumeration, boolean, string and binary outputs (:attr:`_out_disc`) as
+        floats (text and bytes as codes), in port order; one call per FMI type."""
         groups: dict[str, list[int]] = {}
         for i, v in enumerate(self._out_disc):
             groups.setdefault(getter_name(v, self.fmi_version), []).append(i)
@@ -374,7 +382,8 @@ class FmuBase(SubModel):
                 got = getattr(fmu, name)([self._out_disc[i].valueReference for i in index])
             except FMICallException as exc:
                 raise self._error(exc.function, exc) from None
-            out[index] = [float(x) for x in got]
+            coded = name in ("getString", "getBinary")
+            out[index] = [SYMBOLS.code(x) if coded else float(x) for x in got]
         return out
 
     # -- errors ----------------------------------------------------------------------------------
@@ -635,6 +644,20 @@ def _as_bool(value: Any) -> bool:
     return bool(_as_number(value)) if isinstance(value, str) else bool(value)
 
 
+def _as_binary(value: Any) -> bytes:
+    """A Binary value: bytes as they are, a model description's hexadecimal start text, or
+    text (TOML) as UTF-8."""
+    if value is None:
+        return b""
+    if isinstance(value, bytes | bytearray):
+        return bytes(value)
+    text = str(value)
+    try:
+        return bytes.fromhex(text)
+    except ValueError:
+        return text.encode("utf-8")
+
+
 def _as_number(value: Any) -> int:
     """A start value of an integer, boolean or enumeration variable as a number (FMPy gives
     ``"true"``/``"false"`` or numbers as text for some)."""
@@ -660,6 +683,8 @@ def setter_name(v: ModelVariable, version: str) -> tuple[str, type]:
         return "setBoolean", _as_bool
     if v.type == "String":
         return "setString", str
+    if v.type == "Binary":
+        return "setBinary", _as_binary
     if version == "2.0":
         return "setInteger", int
     return f"set{'Int64' if v.type == 'Enumeration' else v.type}", int
@@ -667,8 +692,8 @@ def setter_name(v: ModelVariable, version: str) -> tuple[str, type]:
 
 def getter_name(v: ModelVariable, version: str) -> str:
     """FMPy's getter for a non-real variable's type (``getInteger``, ``getInt32``...)."""
-    if v.type == "Boolean":
-        return "getBoolean"
+    if v.type in ("Boolean", "String", "Binary"):
+        return f"get{v.type}"
     if version == "2.0":
         return "getInteger"
     return f"get{'Int64' if v.type == 'Enumeration' else v.type}"

@@ -155,7 +155,7 @@ class MeSubModel(FmuBase):
     SUPPORTED = (FMI2_ME, FMI3_ME)
     CALL_PREFIX = "fmi2"  # "fmi3" for an FMI 3.0 FMU (set per instance)
     DISCRETE_TYPES = ("Integer", "Boolean", "Enumeration", "Int8", "UInt8", "Int16", "UInt16",
-                      "Int32", "UInt32", "Int64", "UInt64")  # FMI 2.0 and 3.0 names
+                      "Int32", "UInt32", "Int64", "UInt64", "String", "Binary")  # FMI 2 and 3
     ARRAYS = True  # FMI 3.0 arrays; FMI 2.0 has none
 
     def __init__(self, path: str | Path, start: Mapping[str, float] | None = None, *,

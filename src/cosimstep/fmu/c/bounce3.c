@@ -6,7 +6,8 @@
  *   der(h) = v, der(v) = -g; at h = 0 falling: v := -e v, bounces := bounces + 1.
  * Event indicators h (impact) and v (apex: the boolean output `falling`, v <= 0, changes there). The
  * integer input `kicks` may change only in event mode; each increment adds kick_speed to v.
- * When bounces reaches max_bounces (> 0), the FMU asks to terminate the simulation.
+ * When bounces reaches max_bounces (> 0), the FMU asks to terminate the simulation. Binary
+ * input `tag` (event mode only) is passed to Binary output `tag_out` (direct feedthrough).
  */
 #include <string.h>
 
@@ -24,9 +25,10 @@
 #define HAS_CO_SIMULATION BOUNCE_CS
 #define N_STATES 2
 #define N_INDICATORS 2
+#define N_BINARY 2 /* tag, tag_out */
 
 enum { VR_TIME, VR_H, VR_DER_H, VR_V, VR_DER_V, VR_G, VR_E, VR_BOUNCES, VR_FALLING, VR_KICKS,
-       VR_KICK_SPEED, VR_MAX_BOUNCES, VR_MAX_DT, N_VR };
+       VR_KICK_SPEED, VR_MAX_BOUNCES, VR_MAX_DT, VR_TAG, VR_TAG_OUT, N_VR };
 /* the states first (h, v), then the rest; O_KICKS_SEEN is internal (no value reference) */
 enum { O_H, O_V, O_DER_H, O_DER_V, O_G, O_E, O_BOUNCES, O_FALLING, O_KICKS, O_KICK_SPEED,
        O_MAX_BOUNCES, O_MAX_DT, O_KICKS_SEEN, N_V };
@@ -36,6 +38,8 @@ enum { O_H, O_V, O_DER_H, O_DER_V, O_G, O_E, O_BOUNCES, O_FALLING, O_KICKS, O_KI
 typedef struct {
     double time;
     double v[N_V];
+    unsigned char bin[N_BINARY][BINARY_MAX];
+    size_t bin_size[N_BINARY];
 } State;
 
 static const Var VARS[N_VR] = {
@@ -52,16 +56,20 @@ static const Var VARS[N_VR] = {
     {T_FLOAT64, O_KICK_SPEED, 1, K_PARAMETER},
     {T_INT32, O_MAX_BOUNCES, 1, K_PARAMETER},
     {T_FLOAT64, O_MAX_DT, 1, K_PARAMETER},
+    {T_BINARY, 0, 1, K_DISCRETE_INPUT},
+    {T_BINARY, 1, 1, K_OUTPUT},
 };
 
 static void model_start(State *s) {
-    memset(s->v, 0, sizeof s->v);
+    memset(s, 0, sizeof *s);
     s->v[O_H] = 1.0;
     s->v[O_G] = 9.81;
     s->v[O_E] = 0.7;
     s->v[O_KICK_SPEED] = 2.0;
     s->v[O_FALLING] = 1.0;
     s->v[O_MAX_DT] = 1e-3;
+    memcpy(s->bin[0], "\xc0\xff\xee", 3); /* tag: the model description's start c0ffee */
+    s->bin_size[0] = 3;
 }
 
 static const char *model_check(const State *s) {
@@ -76,6 +84,8 @@ static void model_derivatives(State *s, double dx[N_STATES]) {
     dx[1] = -s->v[O_G];
     s->v[O_DER_H] = dx[0];
     s->v[O_DER_V] = dx[1];
+    memcpy(s->bin[1], s->bin[0], s->bin_size[0]); /* tag_out = tag */
+    s->bin_size[1] = s->bin_size[0];
 }
 
 static void model_indicators(const State *s, double z[]) {

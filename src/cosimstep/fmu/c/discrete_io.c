@@ -4,13 +4,14 @@
  * -DKIND=1, "stair": no inputs and no real outputs. Integer output `counter` starts at 1 and
  *   steps up by one at every multiple of the Real parameter `period` (a time event inside the
  *   FMU: the value at the end of a step that ends on the event is already the new one); Boolean
- *   output `odd` is true while the counter is odd; String parameter `label` is only kept (it can
- *   be set and read back, fmi2GetString). With Integer parameter `stop_at` > 0, the step in
+ *   output `odd` is true while the counter is odd, String output `word` is "odd" or "even" with
+ *   it; String parameter `label` is only kept (it can be set and read back, fmi2GetString). With Integer parameter `stop_at` > 0, the step in
  *   which the counter reaches it returns fmi2Discard and fmi2GetBooleanStatus(fmi2Terminated)
  *   says true: the FMU ends the simulation (FMI 2.0 terminateSimulation).
  * -DKIND=2, "echo": Integer input `n` and Boolean input `b`, passed straight to Integer output
- *   `n_out` and Boolean output `b_out` (direct feedthrough), and Real output `x`, the integral of
- *   the integer input (exact for an input held over each step: x += n h).
+ *   `n_out` and Boolean output `b_out` (direct feedthrough), String input `s` passed to String
+ *   output `s_out` the same way, and Real output `x`, the integral of the integer input (exact
+ *   for an input held over each step: x += n h).
  *
  * FMU state get/set/serialize are offered (the state is a flat struct).
  */
@@ -40,14 +41,14 @@
 enum { R_PERIOD = 0, R_X = 1, N_REAL };
 enum { I_COUNTER = 0, I_N = 1, I_N_OUT = 2, I_STOP = 3, N_INT };
 enum { B_ODD = 0, B_B = 1, B_B_OUT = 2, N_BOOL };
-enum { S_LABEL = 0, N_STRING };
+enum { S_LABEL = 0, S_WORD = 1, S_S = 2, S_S_OUT = 3, N_STRING };
 
 typedef struct {
     double time;
     double r[N_REAL];
     int i[N_INT];
     int b[N_BOOL];
-    char label[LABEL_SIZE];
+    char str[N_STRING][LABEL_SIZE];
     int terminated; /* the stair reached `stop_at`: it asks to end the simulation */
 } State;
 
@@ -79,6 +80,7 @@ static void stair(State *s, double t) {
     double steps = floor(t / s->r[R_PERIOD] + 1e-12);
     s->i[I_COUNTER] = 1 + (int)steps;
     s->b[B_ODD] = s->i[I_COUNTER] % 2 != 0;
+    strcpy(s->str[S_WORD], s->b[B_ODD] ? "odd" : "even");
 #else
     (void)s;
     (void)t;
@@ -89,6 +91,7 @@ static void feedthrough(State *s) {
 #if KIND == 2
     s->i[I_N_OUT] = s->i[I_N];
     s->b[B_B_OUT] = s->b[B_B];
+    strcpy(s->str[S_S_OUT], s->str[S_S]);
 #else
     (void)s;
 #endif
@@ -120,7 +123,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     inst->name = malloc(strlen(instanceName ? instanceName : "") + 1);
     if (inst->name) strcpy(inst->name, instanceName ? instanceName : "");
     inst->s.r[R_PERIOD] = 1.0;
-    strcpy(inst->s.label, "stair");
+    strcpy(inst->s.str[S_LABEL], "stair");
     stair(&inst->s, 0.0);
     return inst;
 }
@@ -198,7 +201,7 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     Instance *inst = as_instance(c);
     for (size_t k = 0; k < nvr; k++) {
         CHECK_VR(inst, vr[k], N_STRING, "fmi2GetString");
-        value[k] = inst->s.label;
+        value[k] = inst->s.str[vr[k]];
     }
     return fmi2OK;
 }
@@ -209,10 +212,11 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     for (size_t k = 0; k < nvr; k++) {
         CHECK_VR(inst, vr[k], N_STRING, "fmi2SetString");
         if (!value[k] || strlen(value[k]) >= LABEL_SIZE)
-            return FAIL(inst, "fmi2SetString: label must have fewer than %d characters",
+            return FAIL(inst, "fmi2SetString: a string must have fewer than %d characters",
                         LABEL_SIZE);
-        strcpy(inst->s.label, value[k]);
+        strcpy(inst->s.str[vr[k]], value[k]);
     }
+    feedthrough(&inst->s);
     return fmi2OK;
 }
 

@@ -20,8 +20,8 @@
  *   void model_derivatives(State *s, double dx[N_STATES])  also stores derived variables in v
  *   void model_indicators(const State *s, double z[])      (N_INDICATORS values)
  *   void model_event(State *s, Event *e)         discrete update at an event
- * Integers and booleans are kept in v as doubles. Every value read is refreshed with
- * model_derivatives first, so derived variables are current.
+ * Integers and booleans are kept in v as doubles; Binary variables (N_BINARY > 0) in State.bin.
+ * Every value read is refreshed with model_derivatives first, so derived variables are current.
  */
 #ifndef COSIMSTEP_FMI3_FRAME_H
 #define COSIMSTEP_FMI3_FRAME_H
@@ -35,6 +35,10 @@
 #include "fmi3_model.h"
 
 #define STATE_MAGIC 0x33464d43u /* "CMF3": tags serialized states */
+
+#ifndef N_BINARY
+#define N_BINARY 0
+#endif
 
 typedef enum {
     MODE_INSTANTIATED, MODE_INITIALIZATION, MODE_EVENT, MODE_CONTINUOUS, MODE_STEP,
@@ -316,6 +320,36 @@ NO_VARIABLES(Int64, fmi3Int64)
 NO_VARIABLES(UInt64, fmi3UInt64)
 NO_VARIABLES(String, fmi3String)
 
+#if N_BINARY > 0
+/* The pointers stay valid until the value is set again (the standard's requirement). */
+fmi3Status fmi3GetBinary(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                         size_t valueSizes[], fmi3Binary values[], size_t nValues) {
+    Instance *inst = AS(instance);
+    if (check_values(inst, "fmi3GetBinary", T_BINARY, vr, nvr, nValues, 0)) return fmi3Error;
+    refresh(inst);
+    for (size_t i = 0; i < nvr; i++) {
+        const int k = VARS[vr[i]].offset;
+        values[i] = inst->s.bin[k];
+        valueSizes[i] = inst->s.bin_size[k];
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetBinary(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                         const size_t valueSizes[], const fmi3Binary values[], size_t nValues) {
+    Instance *inst = AS(instance);
+    if (check_values(inst, "fmi3SetBinary", T_BINARY, vr, nvr, nValues, 1)) return fmi3Error;
+    for (size_t i = 0; i < nvr; i++)
+        if (valueSizes[i] > BINARY_MAX)
+            return FAIL(inst, "fmi3SetBinary: %zu bytes, at most %d", valueSizes[i], BINARY_MAX);
+    for (size_t i = 0; i < nvr; i++) {
+        const int k = VARS[vr[i]].offset;
+        if (valueSizes[i]) memcpy(inst->s.bin[k], values[i], valueSizes[i]);
+        inst->s.bin_size[k] = valueSizes[i];
+    }
+    return fmi3OK;
+}
+#else
 fmi3Status fmi3GetBinary(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
                          size_t valueSizes[], fmi3Binary values[], size_t nValues) {
     (void)vr;
@@ -333,6 +367,7 @@ fmi3Status fmi3SetBinary(fmi3Instance instance, const fmi3ValueReference vr[], s
     (void)nValues;
     return nvr ? FAIL(AS(instance), "fmi3SetBinary: no variables of this type") : fmi3OK;
 }
+#endif
 
 /* ---- what this frame does not provide ----------------------------------------------------- */
 

@@ -4,7 +4,11 @@
 
 #include "fmi3.h"
 
-typedef enum { T_FLOAT64, T_INT32, T_BOOLEAN } VarType;
+/* T_BINARY: offset is the index into State.bin (a model with N_BINARY > 0 declares
+ * unsigned char bin[N_BINARY][BINARY_MAX] and size_t bin_size[N_BINARY] in its State). */
+typedef enum { T_FLOAT64, T_INT32, T_BOOLEAN, T_BINARY } VarType;
+
+#define BINARY_MAX 64 /* bytes in one Binary value */
 
 /* K_STATE: a continuous state, settable before initialization ends; K_DISCRETE_INPUT: an
  * input that may change only in event mode (model exchange) or between steps. */
