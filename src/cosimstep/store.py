@@ -142,6 +142,10 @@ class Store:
             raise ValueError(f"run {run_id} in {self.path} exchanged other variables: resume "
                              "it with the same system")
         db, rid = self._db, run_id
+        from cosimstep.symbols import SYMBOLS
+
+        for (value,) in db.execute("SELECT value FROM symbol WHERE run_id=?", (rid,)):
+            SYMBOLS.code(value)  # the codes of the stored points decode in this process
         db.execute("DELETE FROM point WHERE run_id=? AND step>?", (rid, ck.point))
         db.execute("DELETE FROM sample WHERE run_id=? AND step>?", (rid, ck.point))
         db.execute("DELETE FROM attempt WHERE run_id=? AND seq>=?", (rid, ck.attempt_seq))
@@ -166,11 +170,21 @@ class Store:
             values[at, var] = value
         return times, values
 
+    def add_symbols(self, symbols: Mapping[int, str | bytes]) -> None:
+        """Values of String and Binary codes (:mod:`cosimstep.symbols`) the run used."""
+        self._db.executemany("INSERT OR REPLACE INTO symbol VALUES (?, ?, ?)",
+                             [(self.run_id, c, v) for c, v in symbols.items()])
+
     def add_checkpoint(self, t: float, point: int, state: bytes | None, note: str = "") -> None:
         """Everything up to point ``point`` (at ``t``) is committed with the state to go on
-        from there; a run keeps only its newest checkpoint. ``state`` ``None``: the run could
-        not take one, and ``note`` says why (``--resume`` repeats it)."""
+        from there, and the String and Binary values seen so far (a resuming process decodes
+        the stored codes with them); a run keeps only its newest checkpoint. ``state``
+        ``None``: the run could not take one, and ``note`` says why (``--resume`` repeats
+        it)."""
+        from cosimstep.symbols import SYMBOLS
+
         self.flush()
+        self.add_symbols(SYMBOLS.known())
         self._db.execute("INSERT OR REPLACE INTO checkpoint VALUES (?, ?, ?, ?, ?, ?, ?)",
                          (self.run_id, t, point, self._seq, time.time(),
                           None if state is None else sqlite3.Binary(state), note))
@@ -254,8 +268,7 @@ class Store:
         String and Binary columns hold (:mod:`cosimstep.symbols`; text stored as TEXT, bytes
         as BLOB)."""
         self.flush()
-        self._db.executemany("INSERT OR REPLACE INTO symbol VALUES (?, ?, ?)",
-                             [(self.run_id, c, v) for c, v in (symbols or {}).items()])
+        self.add_symbols(symbols or {})
         self._db.executemany("INSERT INTO calls VALUES (?, ?, ?, ?)",
                              [(self.run_id, m, calls[m], time_in_models[m]) for m in calls])
         self._db.execute(

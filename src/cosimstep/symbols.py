@@ -2,18 +2,21 @@
 
 Everything a master moves, extrapolates, stores and checkpoints is a vector of floats, and a
 String or Binary variable is only ever held (it is discrete), never interpolated. So such a port
-carries a *code*: the index of its value in a process-wide table, :data:`SYMBOLS`. An FMU
-adapter turns what it reads into codes and the codes it is given back into values; a result
-decodes its text columns (:meth:`~cosimstep.result.SimulationResult.text`), and the results
-store keeps the values of the codes a run used (table ``symbol``), so a stored run reads back
-the same text.
+carries a *code* for its value, kept in a process-wide table, :data:`SYMBOLS`. An FMU adapter
+turns what it reads into codes and the codes it is given back into values; a result decodes its
+text columns (:meth:`~cosimstep.result.SimulationResult.text`), and the results store keeps the
+values of the codes a run used (table ``symbol``, also at every checkpoint), so a stored run
+reads back the same text.
 
-Codes are stable within a process, so two runs in one process share them; a run read from a
-store uses the codes stored with it. The value of code 0 is the empty string.
+A code is a 48-bit hash of the value (and whether it is text or bytes), exact as a float: the
+same value has the same code in every process, so a run resumed from a checkpoint by another
+process, or one run of a sweep on another worker, agrees on the codes. Two values with one
+code would be refused (a chance of about n^2 / 2^49 for n distinct values).
 """
 
 from __future__ import annotations
 
+import hashlib
 import threading
 from collections.abc import Iterable, Mapping
 from typing import Any
@@ -27,27 +30,27 @@ class Symbols:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._values: list[str | bytes] = [""]
-        self._codes: dict[tuple[type, str | bytes], int] = {(str, ""): 0}
+        self._values: dict[int, str | bytes] = {}
 
     def code(self, value: str | bytes | None) -> float:
         """The code of ``value`` (``None``, as an FMU may return, is the empty string)."""
         if value is None:
             value = ""
-        key = (type(value), value)
+        data = b"b" + value if isinstance(value, bytes) else b"s" + value.encode("utf-8")
+        code = int.from_bytes(hashlib.blake2b(data, digest_size=6).digest(), "little")
         with self._lock:
-            index = self._codes.get(key)
-            if index is None:
-                index = self._codes[key] = len(self._values)
-                self._values.append(value)
-        return float(index)
+            known = self._values.setdefault(code, value)
+        if known != value or type(known) is not type(value):
+            raise ValueError(f"{value!r} and {known!r} have the same code")
+        return float(code)
 
     def value(self, code: float) -> str | bytes:
-        """The value of a code; ``KeyError`` for a number that is not one."""
-        index = int(code)
-        if index != code or not 0 <= index < len(self._values):
-            raise KeyError(f"{code!r} is not the code of a text or bytes value")
-        return self._values[index]
+        """The value of a code; ``KeyError`` for a number that is not the code of a value
+        seen in this process (or loaded from a store)."""
+        try:
+            return self._values[int(code)]
+        except (KeyError, ValueError, OverflowError):
+            raise KeyError(f"{code!r} is not the code of a known text or bytes value") from None
 
     def text(self, code: float) -> str:
         value = self.value(code)
@@ -56,6 +59,11 @@ class Symbols:
     def binary(self, code: float) -> bytes:
         value = self.value(code)
         return value.encode("utf-8") if isinstance(value, str) else value
+
+    def known(self) -> dict[int, str | bytes]:
+        """Every code seen in this process, with its value."""
+        with self._lock:
+            return dict(self._values)
 
     def table(self, codes: Iterable[float]) -> dict[int, str | bytes]:
         """Code → value for the distinct ``codes`` (what a store keeps for one run)."""

@@ -224,3 +224,18 @@ def test_strings_are_stored_and_read_back(fmus: dict[str, Path], tmp_path: Path)
     assert list(result.to_pandas()["ec.s_out"]) == result.text("ec.s_out")
     with pytest.raises(ValueError, match="not a String or Binary output"):
         result.text("st.counter")
+
+
+def test_string_codes_are_the_same_in_every_process() -> None:
+    """A code is a hash of the value, so a resumed run or a sweep worker agrees on it."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", "from cosimstep.symbols import SYMBOLS; "
+                          "print(repr([SYMBOLS.code('odd'), SYMBOLS.code(b'odd')]))"],
+                         capture_output=True, text=True, check=True).stdout
+    assert eval(out) == [SYMBOLS.code("odd"), SYMBOLS.code(b"odd")]
+    assert SYMBOLS.code("odd") != SYMBOLS.code(b"odd")
+    with pytest.raises(KeyError, match="not the code of a known"):
+        SYMBOLS.value(12345.0)
+
