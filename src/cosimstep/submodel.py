@@ -15,12 +15,16 @@ from __future__ import annotations
 
 import math
 import pickle
+import re
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+ELEMENT = re.compile(r"^(.+)\[\s*(\d+(?:\s*,\s*\d+)*)\s*\]$")
+"""An array element's name, ``A[2,1]`` or ``y[3]``: the array's name and the 1-based indices."""
 
 
 @dataclass(frozen=True)

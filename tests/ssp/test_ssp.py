@@ -214,3 +214,33 @@ def test_every_structure_problem_listed(tmp_path: Path, bar_fmus: dict[int, Path
                      "'bar2' has no connector 'thetaX'",
                      "endElement 'bar3' is not a component"):
         assert expected in out, out
+
+
+def test_array_elements_are_set_from_ssv_parameters(tmp_path: Path, recipe_cache: Path) -> None:
+    """SSV parameter values are scalars: `A[2,1]` and `x[1]` (FMI's structured names) set one
+    element of an array each, the others keep the model description's start values. The FMI
+    3.0 state-space FMU then follows the matrix exponential of A = [[0, 1], [-9, -0.4]]."""
+    import scipy.linalg as sl
+
+    from cosimstep.fmu.build import build_fmu
+
+    params = {"A[2,1]": -9.0, "x[1]": 0.5, "x[2]": 1.0}
+    values = "".join(f'<ssv:Parameter name="{k}"><ssv:Real value="{v}"/></ssv:Parameter>'
+                     for k, v in params.items())
+    body = (HEAD + '<ssd:Component name="ss" source="resources/ss.fmu"><ssd:ParameterBindings>'
+            '<ssd:ParameterBinding><ssd:ParameterValues><ssv:ParameterSet version="1.0" '
+            f'name="s"><ssv:Parameters>{values}</ssv:Parameters></ssv:ParameterSet>'
+            "</ssd:ParameterValues></ssd:ParameterBinding></ssd:ParameterBindings>"
+            "</ssd:Component></ssd:Elements></ssd:System></ssd:SystemStructureDescription>")
+    path = write_ssp(tmp_path / "ss.ssp", body,
+                     {"resources/ss.fmu": build_fmu("statespace3")})
+    spec = cosimstep.load_system(path)
+    result = cosimstep.simulate(spec.system, 1.0, cosimstep.Fixed(0.05))
+    assert result.success, result.message
+    a = np.array([[0.0, 1.0], [-9.0, -0.4]])
+    exact = np.array([sl.expm(a * t) @ [0.5, 1.0] for t in result.times])
+    assert np.max(np.abs(result["ss.y[1]"] - exact[:, 0])) < 1e-10
+    bad = write_ssp(tmp_path / "bad.ssp", body.replace("A[2,1]", "A[3,1]"),
+                    {"resources/ss.fmu": build_fmu("statespace3")})
+    with pytest.raises(cosimstep.ConfigurationError, match=r"'A\[3,1\]' is not an element"):
+        cosimstep.load_system(bad)

@@ -38,7 +38,7 @@ from fmpy.model_description import ModelDescription, ModelVariable, ValidationEr
 
 from cosimstep.archive import escapes, new_folder, size_problems
 from cosimstep.errors import EndOfSimulation
-from cosimstep.submodel import Port, SubModel
+from cosimstep.submodel import ELEMENT, Port, SubModel
 from cosimstep.symbols import SYMBOLS
 
 STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
@@ -270,38 +270,68 @@ class FmuBase(SubModel):
         return ([v for v in of if v.type in REAL_TYPES and (self.ARRAYS or not v.dimensions)],
                 [v for v in of if v.type in self.DISCRETE_TYPES and not v.dimensions])
 
-    def size(self, v: ModelVariable) -> int:
-        """How many values variable ``v`` holds: 1, or its array's element count (dimensions
-        fixed, or given by structural parameters: their start values, or the values set)."""
-        n = 1
+    def shape(self, v: ModelVariable) -> list[int]:
+        """An array variable's extent per dimension (``[]`` for a scalar): fixed, or given by
+        a structural parameter (its start value, or the value set)."""
+        given = getattr(self, "start", {})
+        out = []
         for d in v.dimensions:
             if d.start is not None:
-                n *= int(d.start)
+                out.append(int(d.start))
             else:
                 ref = d.variable
-                value = self.start[ref.name][1] if ref.name in self.start else ref.start
-                n *= int(_as_number(value))
-        return n
+                value = given[ref.name][1] if ref.name in given else ref.start
+                out.append(int(_as_number(value)))
+        return out
+
+    def size(self, v: ModelVariable) -> int:
+        """How many values variable ``v`` holds: 1, or its array's element count."""
+        return int(np.prod(self.shape(v))) if v.dimensions else 1
 
     def _check_start(self, start: dict[str, Any],
                      by_name: Mapping[str, ModelVariable]) -> dict[str, tuple[ModelVariable, Any]]:
-        problems = []
-        for name in start:
+        """The overrides by variable, every problem reported at once. ``name[i]`` or
+        ``name[i,j]`` (1-based, FMI's structured names) sets one element of an array variable
+        on top of its start value or of the whole array given — the way an SSP, whose
+        parameter values are scalars, sets an array."""
+        problems, elements, whole = [], [], {}
+        for name, value in start.items():
+            match = ELEMENT.match(name)
+            if name not in by_name and match and match.group(1) in by_name:
+                elements.append((name, match.group(1), match.group(2), value))
+                continue
             v = by_name.get(name)
-            if v is None:
-                problems.append(f"'{name}' is not a variable of the FMU")
-            elif v.variability == "constant" or v.causality == "independent" or (
-                    # FMI: outputs and locals (states) only with a start value that is used
-                    v.causality in ("output", "calculatedParameter", "local")
-                    and v.initial not in _SETTABLE_BEFORE_INIT):
-                problems.append(f"'{name}' ({v.causality}, {v.variability}) cannot be set")
-            elif v.type not in _SETTABLE_TYPES or (v.dimensions and not self.ARRAYS):
-                problems.append(f"'{name}' is of type {v.type}"
-                                f"{' (an array)' if v.dimensions else ''}, which cannot be set "
-                                "here")
+            why = "is not a variable of the FMU" if v is None else self._unsettable(v)
+            if why:
+                problems.append(f"'{name}' {why}")
+            else:
+                whole[name] = (v, value)
+        for name, base, index, value in elements:
+            v = by_name[base]
+            why = self._unsettable(v) or ("" if v.dimensions else "is not an array")
+            at = None if why else _flat_index(index, self.shape(v))
+            if why or at is None:
+                why = why or f"is not an element of an array of shape {self.shape(v)}"
+                problems.append(f"'{name}' {why}")
+                continue
+            values = array_values(whole.get(base, (v, v.start))[1], self.size(v))
+            values[at] = float(value)
+            whole[base] = (v, values)
         if problems:
             raise ValueError(f"`start` for FMU {self.path}: {'; '.join(problems)}")
-        return {name: (by_name[name], value) for name, value in start.items()}
+        return whole
+
+    def _unsettable(self, v: ModelVariable) -> str:
+        """Why ``v`` cannot be given a start value here ("" if it can)."""
+        if v.variability == "constant" or v.causality == "independent" or (
+                # FMI: outputs and locals (states) only with a start value that is used
+                v.causality in ("output", "calculatedParameter", "local")
+                and v.initial not in _SETTABLE_BEFORE_INIT):
+            return f"({v.causality}, {v.variability}) cannot be set"
+        if v.type not in _SETTABLE_TYPES or (v.dimensions and not self.ARRAYS):
+            return (f"is of type {v.type}{' (an array)' if v.dimensions else ''}, which cannot "
+                    "be set here")
+        return ""
 
     def _ports(self, v: ModelVariable) -> list[Port]:
         """The port of a scalar variable; one per element of an array, ``name[1]`` …
@@ -708,6 +738,15 @@ def set_values(fmu: Any, values: Sequence[tuple[ModelVariable, Any]], version: s
             getattr(fmu, name)([v.valueReference], [kind(x) for x in array_values(value)])
         else:
             getattr(fmu, name)([v.valueReference], [kind(value)])
+
+
+def _flat_index(index: str, shape: Sequence[int]) -> int | None:
+    """The row-major position of the 1-based ``"i,j"`` in an array of ``shape``, or ``None``
+    if it is not one of its elements."""
+    idx = [int(i) - 1 for i in index.split(",")]
+    if len(idx) != len(shape) or any(not 0 <= i < n for i, n in zip(idx, shape, strict=True)):
+        return None
+    return int(np.ravel_multi_index(idx, shape))
 
 
 def array_values(value: Any, n: int | None = None) -> list[float]:

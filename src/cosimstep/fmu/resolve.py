@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cosimstep.errors import Problem
-from cosimstep.submodel import SubModel
+from cosimstep.submodel import ELEMENT, SubModel
 
 if TYPE_CHECKING:
     from fmpy.model_description import ModelDescription, ModelVariable
@@ -183,6 +183,13 @@ def _override_problem(model_name: str, by_name: Mapping[str, ModelVariable], key
     """What is wrong with one override ``"<parameters|start>.<variable>" = value``, if anything."""
     kind, _, var = key.partition(".")
     v = by_name.get(var)
+    element = ELEMENT.match(var)
+    if v is None and element and element.group(1) in by_name:
+        v = by_name[element.group(1)]  # one element of an array, `A[2,1]` (checked when built)
+        if isinstance(value, bool) or not isinstance(value, int | float) \
+                or not math.isfinite(value):
+            return Problem(f"{where}.{key}", f"must be a finite number, got {value!r}",
+                           "write a number")
     if v is None:
         known, label = _settable_names(by_name, kind)
         return Problem(f"{where}.{key}", f"FMU '{model_name}' has no variable '{var}'",
@@ -190,10 +197,11 @@ def _override_problem(model_name: str, by_name: Mapping[str, ModelVariable], key
     if kind == "parameters" and v.causality != "parameter":
         return Problem(f"{where}.{key}", f"'{var}' has causality {v.causality}, not parameter",
                        "set its start value under `start` instead")
-    if v.type == "String":
+    if v.type in ("String", "Binary"):
         if not isinstance(value, str):
-            return Problem(f"{where}.{key}", f"'{var}' is a String, got {value!r}",
-                           'write it in quotes, e.g. "text"')
+            return Problem(f"{where}.{key}", f"'{var}' is a {v.type}, got {value!r}",
+                           'write it in quotes, e.g. "text"' if v.type == "String" else
+                           'write its bytes in hexadecimal, e.g. "c0ffee"')
         return None
     if v.type == "Boolean" and isinstance(value, bool):
         return None
