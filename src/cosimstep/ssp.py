@@ -89,6 +89,7 @@ class Component:
     type: str | None
     connectors: dict[str, Connector]
     bindings: list[ET.Element] = field(default_factory=list)
+    implementation: str | None = None  # "co-simulation" | "model-exchange" | None (any)
 
 
 @dataclass
@@ -220,6 +221,11 @@ def _compose(*maps: Affine) -> Affine:
     return a, b
 
 
+_IMPLEMENTATIONS = {"any": None, "CoSimulation": "co-simulation",
+                    "ModelExchange": "model-exchange"}
+"""SSP's ssd:Component ``implementation`` as the TOML ``interface``."""
+
+
 def _read_components(system: ET.Element, where: str,
                      problems: list[Problem]) -> dict[str, Component]:
     components: dict[str, Component] = {}
@@ -242,9 +248,15 @@ def _read_components(system: ET.Element, where: str,
             connectors[c.get("name", "")] = Connector(
                 c.get("name", ""), c.get("kind", ""),
                 real.get("unit") if real is not None else None)
+        implementation = _IMPLEMENTATIONS.get(elem.get("implementation", "any"), "?")
+        if implementation == "?":
+            problems.append(Problem(f"{loc} implementation", f"implementation "
+                                    f"'{elem.get('implementation')}' cannot be run",
+                                    "use CoSimulation, ModelExchange or any"))
+            implementation = None
         components[name] = Component(name, elem.get("source", ""), elem.get("type"), connectors,
                                      elem.findall("ssd:ParameterBindings/ssd:ParameterBinding",
-                                                  NS))
+                                                  NS), implementation)
     return components
 
 
@@ -523,7 +535,7 @@ def _add_components(system: System, ssd: dict[str, Any], folder: Path, where: st
             continue
         values = _in_fmu_units(values, fmu, loc, problems)
         model = fmu_submodel(name, fmu, {f"start.{k}": v for k, (v, _) in values.items()},
-                             f"{loc} parameter", problems)
+                             f"{loc} parameter", problems, interface=comp.implementation)
         if model is None or not _check_connectors(comp, model, loc, problems):
             continue
         try:

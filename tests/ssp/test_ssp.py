@@ -244,3 +244,27 @@ def test_array_elements_are_set_from_ssv_parameters(tmp_path: Path, recipe_cache
                     {"resources/ss.fmu": build_fmu("statespace3")})
     with pytest.raises(cosimstep.ConfigurationError, match=r"'A\[3,1\]' is not an element"):
         cosimstep.load_system(bad)
+
+
+def test_the_component_implementation_chooses_the_interface(tmp_path: Path,
+                                                            recipe_cache: Path) -> None:
+    """ssd:Component implementation="ModelExchange" runs an FMU that offers both as model
+    exchange (cosimstep integrates it), "CoSimulation" or none as co-simulation;
+    "ScheduledExecution" is refused naming the attribute."""
+    from cosimstep.fmu.build import build_fmu
+
+    fmu = build_fmu("statespace3")
+
+    def load(implementation: str) -> cosimstep.SystemSpec:
+        attr = f' implementation="{implementation}"' if implementation else ""
+        body = (HEAD + f'<ssd:Component name="ss" source="resources/ss.fmu"{attr}/>'
+                "</ssd:Elements></ssd:System></ssd:SystemStructureDescription>")
+        path = write_ssp(tmp_path / f"{implementation or 'any'}.ssp", body,
+                         {"resources/ss.fmu": fmu})
+        return cosimstep.load_system(path)
+
+    assert load("ModelExchange").system.models["ss"].kind == "ME"
+    assert load("CoSimulation").system.models["ss"].kind == "CS"
+    assert load("").system.models["ss"].kind == "CS"
+    with pytest.raises(cosimstep.ConfigurationError, match="implementation 'ScheduledExecution'"):
+        load("ScheduledExecution")

@@ -180,14 +180,15 @@ def _apply_overrides(model_name: str, by_name: Mapping[str, ModelVariable],
 
 def _override_problem(model_name: str, by_name: Mapping[str, ModelVariable], key: str,
                       value: Any, where: str) -> Problem | None:
-    """What is wrong with one override ``"<parameters|start>.<variable>" = value``, if anything."""
+    """What is wrong with one override ``"<parameters|start>.<variable>" = value``, if anything.
+    ``variable`` may name one element of an array, ``A[2,1]`` (its index is checked when the
+    FMU is opened)."""
     kind, _, var = key.partition(".")
     v = by_name.get(var)
     element = ELEMENT.match(var)
     if v is None and element and element.group(1) in by_name:
-        v = by_name[element.group(1)]  # one element of an array, `A[2,1]` (checked when built)
-        if isinstance(value, bool) or not isinstance(value, int | float) \
-                or not math.isfinite(value):
+        v = by_name[element.group(1)]
+        if not _finite_number(value):
             return Problem(f"{where}.{key}", f"must be a finite number, got {value!r}",
                            "write a number")
     if v is None:
@@ -197,24 +198,33 @@ def _override_problem(model_name: str, by_name: Mapping[str, ModelVariable], key
     if kind == "parameters" and v.causality != "parameter":
         return Problem(f"{where}.{key}", f"'{var}' has causality {v.causality}, not parameter",
                        "set its start value under `start` instead")
+    problem = _value_problem(v, var, value)
+    return None if problem is None else Problem(f"{where}.{key}", *problem)
+
+
+def _finite_number(value: Any) -> bool:
+    return (not isinstance(value, bool) and isinstance(value, int | float)
+            and math.isfinite(value))
+
+
+def _value_problem(v: ModelVariable, var: str, value: Any) -> tuple[str, str] | None:
+    """Why ``value`` does not suit variable ``v`` (message, fix), if it does not."""
     if v.type in ("String", "Binary"):
-        if not isinstance(value, str):
-            return Problem(f"{where}.{key}", f"'{var}' is a {v.type}, got {value!r}",
-                           'write it in quotes, e.g. "text"' if v.type == "String" else
-                           'write its bytes in hexadecimal, e.g. "c0ffee"')
-        return None
+        if isinstance(value, str):
+            return None
+        return (f"'{var}' is a {v.type}, got {value!r}",
+                'write it in quotes, e.g. "text"' if v.type == "String" else
+                'write its bytes in hexadecimal, e.g. "c0ffee"')
     if v.type == "Boolean" and isinstance(value, bool):
         return None
     if v.dimensions and isinstance(value, list):
         flat = np.asarray(value, dtype=object).ravel() if value else np.zeros(0)
-        if flat.size and all(isinstance(x, int | float) and not isinstance(x, bool)
-                             and math.isfinite(x) for x in flat):
+        if flat.size and all(_finite_number(x) for x in flat):
             return None
-        return Problem(f"{where}.{key}", f"'{var}' is an array: give a list of numbers "
-                       f"(nested for a matrix), got {value!r}", "e.g. [1.0, 0.0, 0.0]")
+        return (f"'{var}' is an array: give a list of numbers (nested for a matrix), got "
+                f"{value!r}", "e.g. [1.0, 0.0, 0.0]")
     if isinstance(value, str) or (isinstance(value, float) and not math.isfinite(value)):
-        return Problem(f"{where}.{key}", f"must be a finite number, got {value!r}",
-                       "write a number")
+        return f"must be a finite number, got {value!r}", "write a number"
     return None
 
 
