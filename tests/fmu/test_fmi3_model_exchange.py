@@ -50,8 +50,8 @@ def test_array_parameters_and_ports(ss: Path, kind: str, bound: float) -> None:
     is integrated by RK45 at rtol 1e-8 (measured 5.0e-9), co-simulation by the FMU's RK4 with
     1 ms steps (4.2e-12)."""
     model = open_fmu(ss, {"A": A, "x": X0}, kind=kind)
-    assert [p.name for p in model.inputs] == ["u[1]", "u[2]"]
-    assert [p.name for p in model.outputs] == ["y[1]", "y[2]"]
+    assert [p.name for p in model.inputs] == ["u[1]", "u[2]", "k[1]", "k[2]"]
+    assert [p.name for p in model.outputs] == ["y[1]", "y[2]", "k_out[1]", "k_out[2]"]
     assert isinstance(model, MeSubModel) == (kind == "ME")
     result = cosimstep.simulate(cosimstep.System().add("s", model), 2.0, cosimstep.Fixed(0.05))
     assert result.success, result.message
@@ -243,3 +243,20 @@ def test_binary_ports(fmu_cache: Path, recipe: str, tmp_path: Path) -> None:
     assert read_run(tmp_path / "b.db").text("b.tag_out") == [b"\x01\x02\x03"] * 4
     system.connect("a.bounces", "c.tag")
     assert "an integer output feeds binary input 'c.tag'" in str(system.problems())
+
+
+@pytest.mark.parametrize("kind", ["ME", "CS"])
+def test_integer_array_ports(ss: Path, kind: str) -> None:
+    """An Int32 array input k[2] (start "3 4") passed to the Int32 array output k_out[2]: one
+    port per element, of kind integer, discrete; b's k = [7, 8] (a TOML-style list) reaches
+    a through the whole-array connection `b.k_out -> a.k` at every point, also at t = 0
+    (feedthrough)."""
+    a, b = open_fmu(ss, kind=kind), open_fmu(ss, {"k": [7, 8]}, kind=kind)
+    assert [(p.name, p.kind, p.start) for p in a.inputs][2:] == [
+        ("k[1]", "integer", 3.0), ("k[2]", "integer", 4.0)]
+    assert [(p.name, p.kind, p.discrete) for p in a.outputs][2:] == [
+        ("k_out[1]", "integer", True), ("k_out[2]", "integer", True)]
+    system = cosimstep.System().add("a", a).add("b", b).connect("b.k_out", "a.k")
+    result = cosimstep.simulate(system, 0.3, cosimstep.Fixed(0.1))
+    assert result.success, result.message
+    assert list(result["a.k_out[1]"]) == [7.0] * 4 and list(result["a.k_out[2]"]) == [8.0] * 4

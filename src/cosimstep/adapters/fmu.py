@@ -279,6 +279,8 @@ class FmuSubModel(FmuBase):
             self._component, addr["out_vr"], self._dy.size, addr["ones"], addr["dy"])
         if status > 1:
             raise self._failed("fmi2GetRealOutputDerivatives", status)
+        if self._out_disc:  # integers, booleans, strings: piecewise constant
+            return np.concatenate([self._dy, np.zeros(len(self._out_disc))])
         return self._dy.copy()
 
     def save_state(self) -> Any:

@@ -190,8 +190,10 @@ class Fmu3SubModel(FmuBase):
     def get_output_derivatives(self) -> np.ndarray:
         if not self.capabilities.provides_derivatives:
             return super().get_output_derivatives()
-        return np.array(self._call("getOutputDerivatives", self._out_vr,
-                                   [1] * len(self._out_vr)))
+        reals = np.array(self._call("getOutputDerivatives", self._out_vr,
+                                    [1] * len(self._out_vr)))
+        # integers, booleans, strings: piecewise constant
+        return np.concatenate([reals, np.zeros(len(self.outputs) - self._n_out)])
 
     def save_state(self) -> Any:
         if not self.capabilities.can_save_state:

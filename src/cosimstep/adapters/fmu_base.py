@@ -14,6 +14,7 @@ FMU-state pointers for reuse until :meth:`FmuBase.terminate` frees them. The ada
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import shutil
 import sys
 import threading
@@ -267,8 +268,10 @@ class FmuBase(SubModel):
         the adapter exchanges too (:attr:`DISCRETE_TYPES`; their ports come after the real
         ones, in the model description's order)."""
         of = [v for v in md.modelVariables if v.causality == causality]
-        return ([v for v in of if v.type in REAL_TYPES and (self.ARRAYS or not v.dimensions)],
-                [v for v in of if v.type in self.DISCRETE_TYPES and not v.dimensions])
+        arrays = self.ARRAYS  # of numbers; String and Binary arrays are not ports
+        return ([v for v in of if v.type in REAL_TYPES and (arrays or not v.dimensions)],
+                [v for v in of if v.type in self.DISCRETE_TYPES and (
+                    not v.dimensions or (arrays and v.type not in _CODED))])
 
     def shape(self, v: ModelVariable) -> list[int]:
         """An array variable's extent per dimension (``[]`` for a scalar): fixed, or given by
@@ -335,18 +338,24 @@ class FmuBase(SubModel):
 
     def _ports(self, v: ModelVariable) -> list[Port]:
         """The port of a scalar variable; one per element of an array, ``name[1]`` …
-        ``name[n]`` in the FMU's (row-major) order, each with its start value."""
+        ``name[n]`` in the FMU's (row-major) order, each with its start value and the
+        array's kind, unit and discreteness."""
         if not v.dimensions:
             return [self._port(v)]
         n = self.size(v)
         value = self.start[v.name][1] if v.name in self.start else v.start
-        starts = array_values(value, n) if value is not None else [None] * n
-        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or "1"
-        return [Port(f"{v.name}[{i + 1}]", unit, x, v.description or "") for i, x in
-                enumerate(starts)]
+        starts = array_values(value, n, numbers=v.type not in REAL_TYPES) \
+            if value is not None else [None] * n
+        like = self._port(v, scalar=False)
+        return [dataclasses.replace(like, name=f"{v.name}[{i + 1}]", start=x)
+                for i, x in enumerate(starts)]
 
-    def _port(self, v: ModelVariable) -> Port:
+    def _port(self, v: ModelVariable, scalar: bool = True) -> Port:
+        """The port of variable ``v`` (with ``scalar=False``: its kind, unit and discreteness,
+        for the elements of an array)."""
         value = self.start[v.name][1] if v.name in self.start else v.start
+        if not scalar:
+            value = None
         if v.type in _CODED:  # text and bytes: a code into cosimstep.symbols.SYMBOLS
             kind, unit = _CODED[v.type]
             start = SYMBOLS.code(_as_binary(value) if v.type == "Binary" else value)
@@ -386,12 +395,15 @@ class FmuBase(SubModel):
         from the master's floats: rounded to the nearest integer (a boolean: nonzero), codes
         decoded (:mod:`cosimstep.symbols`); one call per FMI type."""
         groups: dict[str, tuple[list[int], list[Any]]] = {}
-        for v, x in zip(self._in_disc, values, strict=True):
+        at = 0
+        for v in self._in_disc:
             name, kind = setter_name(v, self.fmi_version)
             vrs, xs = groups.setdefault(name, ([], []))
             vrs.append(v.valueReference)
-            xs.append(SYMBOLS.text(x) if v.type == "String" else SYMBOLS.binary(x)
-                      if v.type == "Binary" else kind(round(float(x))))
+            n = self.size(v)  # an array's elements, flattened
+            xs.extend(SYMBOLS.text(x) if v.type == "String" else SYMBOLS.binary(x)
+                      if v.type == "Binary" else kind(round(float(x))) for x in values[at:at + n])
+            at += n
         fmu = self._live()
         for name, (vrs, xs) in groups.items():
             try:
@@ -402,14 +414,20 @@ class FmuBase(SubModel):
     def _read_discrete(self) -> np.ndarray:
         """The integer, enumeration, boolean, string and binary outputs (:attr:`_out_disc`) as
         floats (text and bytes as codes), in port order; one call per FMI type."""
-        groups: dict[str, list[int]] = {}
-        for i, v in enumerate(self._out_disc):
-            groups.setdefault(getter_name(v, self.fmi_version), []).append(i)
+        groups: dict[str, tuple[list[int], list[int]]] = {}  # getter: value refs, ports
+        at = 0
+        for v in self._out_disc:
+            vrs, index = groups.setdefault(getter_name(v, self.fmi_version), ([], []))
+            vrs.append(v.valueReference)
+            n = self.size(v)  # an array's elements, flattened
+            index.extend(range(at, at + n))
+            at += n
         fmu = self._live()
-        out = np.empty(len(self._out_disc))
-        for name, index in groups.items():
-            try:
-                got = getattr(fmu, name)([self._out_disc[i].valueReference for i in index])
+        out = np.empty(at)
+        for name, (vrs, index) in groups.items():
+            try:  # FMI 2.0 has no arrays, and its getters no value count
+                got = getattr(fmu, name)(*((vrs,) if len(index) == len(vrs) else
+                                           (vrs, len(index))))
             except FMICallException as exc:
                 raise self._error(exc.function, exc) from None
             coded = name in ("getString", "getBinary")
@@ -749,11 +767,12 @@ def _flat_index(index: str, shape: Sequence[int]) -> int | None:
     return int(np.ravel_multi_index(idx, shape))
 
 
-def array_values(value: Any, n: int | None = None) -> list[float]:
+def array_values(value: Any, n: int | None = None, numbers: bool = False) -> list[float]:
     """An array's values flattened (row-major): from nested lists (TOML), a number, or a
-    model description's start text ``"1 0 0 1"``; a single value fills ``n`` elements."""
+    model description's start text ``"1 0 0 1"`` (with ``numbers``: integers, booleans
+    ``"true false"``); a single value fills ``n`` elements."""
     if isinstance(value, str):
-        flat = [float(x) for x in value.split()]
+        flat = [float(_as_number(x) if numbers else x) for x in value.split()]
     elif isinstance(value, list | tuple | np.ndarray):
         flat = [float(x) for x in np.asarray(value, dtype=float).ravel()]
     else:

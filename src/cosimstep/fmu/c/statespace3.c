@@ -4,6 +4,8 @@
  *   der(x) = A x + B u,   y = C x + D u,   x, u, y of size 2, A, B, C, D 2 x 2 (row-major).
  *
  * Co-simulation integrates with RK4, at most max_dt per internal step, inputs held over a step.
+ * An Int32 array input k[2] (may change only in event mode or between steps) is passed to the
+ * Int32 array output k_out[2]: cosimstep's test of integer arrays.
  */
 #include <string.h>
 
@@ -16,10 +18,11 @@
 #define N_INDICATORS 0
 
 /* value references */
-enum { VR_TIME, VR_A, VR_B, VR_C, VR_D, VR_U, VR_Y, VR_X, VR_DER_X, VR_MAX_DT, N_VR };
+enum { VR_TIME, VR_A, VR_B, VR_C, VR_D, VR_U, VR_Y, VR_X, VR_DER_X, VR_MAX_DT, VR_K, VR_K_OUT,
+       N_VR };
 /* offsets in State.v */
 enum { O_A = 0, O_B = 4, O_C = 8, O_D = 12, O_U = 16, O_Y = 18, O_X = 20, O_DER_X = 22,
-       O_MAX_DT = 24, N_V = 25 };
+       O_MAX_DT = 24, O_K = 25, O_K_OUT = 27, N_V = 29 };
 #define X_OFFSET O_X
 #define MAX_DT_OFFSET O_MAX_DT
 
@@ -39,6 +42,8 @@ static const Var VARS[N_VR] = {
     {T_FLOAT64, O_X, 2, K_STATE},
     {T_FLOAT64, O_DER_X, 2, K_LOCAL},
     {T_FLOAT64, O_MAX_DT, 1, K_PARAMETER},
+    {T_INT32, O_K, 2, K_DISCRETE_INPUT},
+    {T_INT32, O_K_OUT, 2, K_OUTPUT},
 };
 
 static void model_start(State *s) {
@@ -52,6 +57,8 @@ static void model_start(State *s) {
         1, 0,             /* x */
         0, 0,             /* der(x) */
         1e-3,             /* max_dt */
+        3, 4,             /* k */
+        3, 4,             /* k_out */
     };
     memcpy(s->v, start, sizeof start);
 }
@@ -73,6 +80,8 @@ static void model_derivatives(State *s, double dx[N_STATES]) {
     v[O_DER_X] = dx[0];
     v[O_DER_X + 1] = dx[1];
     affine(&v[O_C], &v[O_X], &v[O_D], &v[O_U], &v[O_Y]);
+    v[O_K_OUT] = v[O_K];
+    v[O_K_OUT + 1] = v[O_K + 1];
 }
 
 static void model_indicators(const State *s, double z[]) {
