@@ -143,11 +143,13 @@ def _pendulum_bar(bar: int) -> Recipe:
 
 def _pendulum_bar_fmi3(bar: int) -> Recipe:
     return Recipe(C_DIR / f"pendulum_bar{bar}_fmi3.xml", (C_DIR / "pendulum_bar_fmi3.c",),
-                  (C_DIR / "fmi3.h", C_DIR / "pendulum_physics.h"), {"BAR": str(bar)})
+                  (C_DIR / "fmi3.h", C_DIR / "fmi3_unsupported.h", C_DIR / "pendulum_physics.h"),
+                  {"BAR": str(bar)})
 
 
 _ME_HEADERS = (C_DIR / "fmi2.h", C_DIR / "fmi2me.h", C_DIR / "fmi2_me_frame.h")
-_FMI3_HEADERS = (C_DIR / "fmi3.h", C_DIR / "fmi3_model.h", C_DIR / "fmi3_frame.h")
+_FMI3_HEADERS = (C_DIR / "fmi3.h", C_DIR / "fmi3_model.h", C_DIR / "fmi3_frame.h",
+                 C_DIR / "fmi3_unsupported.h")
 
 
 def _pendulum_bar_me(bar: int) -> Recipe:
