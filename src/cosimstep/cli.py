@@ -6,6 +6,7 @@ configuration or the command line is wrong (every problem listed).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sqlite3
@@ -25,6 +26,7 @@ from cosimstep.controllers import (
     make_controller,
 )
 from cosimstep.errors import ConfigurationError, Problem
+from cosimstep.iteration import COUPLINGS
 from cosimstep.masters import MASTERS, RESYNC, MasterOptions
 from cosimstep.simulate import SimulationResult, simulate
 
@@ -60,6 +62,13 @@ def main() -> None:
 @click.option("--resync", type=click.Choice(RESYNC), help="Multirate: after an event found "
               "inside a step, roll back only the sub-models it reaches (partial, default) or "
               "every sub-model past it (complete).")
+@click.option("--coupling", type=click.Choice(COUPLINGS), help="explicit (one pass per step, "
+              "default) or strong coupling: every step repeated until the exchanged values "
+              "agree (fixed-point, aitken, iqn-ils).")
+@click.option("--coupling-tol", type=float, help="Strong coupling: converged when every "
+              "exchanged value's residual is within TOL * (1 + |value|) (default 1e-8).")
+@click.option("--max-iterations", type=int, help="Strong coupling: passes per step before it "
+              "fails (default 50).")
 @click.option("--controller", type=click.Choice(sorted(CONTROLLERS)), help="Step controller.")
 @click.option("--step", type=float, help="Fixed step (controller fixed) or initial step [s].")
 @click.option("--tol", type=float,
@@ -118,7 +127,8 @@ def main() -> None:
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar and only the status line "
               "(the exit code says the rest).")
 def run(system: str, until: float | None, master: str | None, extrapolation: int | None,
-        interpolation: str | None, resync: str | None, controller: str | None,
+        interpolation: str | None, resync: str | None, coupling: str | None,
+        coupling_tol: float | None, max_iterations: int | None, controller: str | None,
         step: float | None, tol: float | None, estimate: str, seed: int | None,
         options: tuple[str, ...], params: tuple[str, ...], starts: tuple[str, ...],
         out: str | None, no_store: bool, max_wall: float | None, max_calls: int | None,
@@ -151,6 +161,8 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
                   store=not no_store,
                   budget={"max_wall": max_wall, "max_calls": max_calls, **checkpoints},
                   resync=resync, progress=False if quiet else None, call_timeout=call_timeout,
+                  coupling={"coupling": coupling, "coupling_tol": coupling_tol,
+                            "max_iterations": max_iterations},
                   output=(output_interval, output_steps))
     if quiet and not as_json:
         click.echo(f"status: {result.status} — {result.message}")
@@ -256,8 +268,10 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
          store: bool = True, budget: dict[str, Any] | None = None,
          resync: str | None = None, progress: bool | None = None,
          call_timeout: float | None = None,
-         output: tuple[float | None, bool] = (None, False)) -> SimulationResult:
-    opts = _master_options(spec, master, extrapolation, interpolation, resync, call_timeout)
+         output: tuple[float | None, bool] = (None, False),
+         coupling: dict[str, Any] | None = None) -> SimulationResult:
+    opts = _master_options(spec, master, extrapolation, interpolation, resync, call_timeout,
+                           coupling)
     settings = _controller_settings(spec, controller, step, tol, seed, options)
     name = settings.pop("name", None)
     ctrl = _controller(name, settings, spec.source)
@@ -306,15 +320,20 @@ def _plain_type_error(exc: TypeError) -> str:
 
 def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | None,
                     interpolation: str | None, resync: str | None = None,
-                    call_timeout: float | None = None) -> MasterOptions:
+                    call_timeout: float | None = None,
+                    coupling: dict[str, Any] | None = None) -> MasterOptions:
     """The file's ``[master]`` with the command line's choices on top (exit 2 if invalid);
-    ``call_timeout`` 0 lifts the limit."""
+    ``call_timeout`` 0 lifts the limit; ``coupling``: ``coupling``, ``coupling_tol`` and
+    ``max_iterations`` given on the command line (``None``: the file's)."""
     opts = spec.master
     timeout = opts.call_timeout if call_timeout is None else call_timeout
     opts = MasterOptions(master or opts.name,
                          opts.extrapolation if extrapolation is None else extrapolation,
                          opts.order, timeout, interpolation or opts.interpolation,
                          resync or opts.resync)
+    strong = {k: getattr(spec.master, k) for k in ("coupling", "coupling_tol", "max_iterations")}
+    strong.update({k: v for k, v in (coupling or {}).items() if v is not None})
+    opts = dataclasses.replace(opts, **strong)
     problems = [Problem("master", p, "see `cosimstep run --help`") for p in opts.problems()]
     if problems:
         _config_exit(ConfigurationError(problems, spec.source))
@@ -352,6 +371,10 @@ def _check_scheme(ctrl: Any, opts: MasterOptions, spec: SystemSpec) -> None:
                                 f"{', '.join(unable)} cannot save and restore its state",
                                 "use a fixed step (--controller fixed --step H) with the "
                                 "gauss-seidel or jacobi master"))
+    if unable and opts.coupling != "explicit":
+        problems.append(Problem("coupling", f"coupling '{opts.coupling}' repeats every step "
+                                f"from the saved states, but {', '.join(unable)} cannot save "
+                                "and restore its state", "use --coupling explicit"))
     if multirate:
         from cosimstep.multirate import refusals
 

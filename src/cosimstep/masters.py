@@ -29,6 +29,7 @@ from cosimstep.extrapolation import (
     step_derivative_weights,
     taylor_coefficients,
 )
+from cosimstep.iteration import COUPLINGS, Iteration
 from cosimstep.system import CompiledSystem
 
 MASTERS = ("jacobi", "gauss-seidel", "multirate")
@@ -68,6 +69,16 @@ class MasterOptions:
         taken while others ran past that time (thesis 4.3.5, fig. 85). ``"partial"`` (default):
         only the sub-models the event's outputs reach through the connections; ``"complete"``:
         every sub-model past the event.
+    coupling:
+        ``"explicit"`` (default: one pass per step), or strong coupling, every step repeated
+        until the exchanged values agree: ``"fixed-point"``, ``"aitken"``, ``"iqn-ils"``
+        (:mod:`cosimstep.iteration`). Jacobi and Gauss–Seidel only.
+    coupling_tol:
+        Iteration converged when every exchanged value's residual is within
+        ``coupling_tol * (1 + |value|)`` (absolute and relative).
+    max_iterations:
+        Passes per step before the step counts as failed (:class:`~cosimstep.iteration.
+        CouplingError`).
     """
 
     name: str = "gauss-seidel"
@@ -76,6 +87,9 @@ class MasterOptions:
     call_timeout: float | None = DEFAULT_CALL_TIMEOUT
     interpolation: str | None = None
     resync: str = "partial"
+    coupling: str = "explicit"
+    coupling_tol: float = 1e-8
+    max_iterations: int = 50
 
     def problems(self) -> list[str]:
         out = []
@@ -95,6 +109,20 @@ class MasterOptions:
                 out.append("interpolation applies to the multirate master only")
         if self.resync not in RESYNC:
             out.append(f"unknown resync '{self.resync}'; choose one of {', '.join(RESYNC)}")
+        return out + self._coupling_problems()
+
+    def _coupling_problems(self) -> list[str]:
+        out = []
+        if self.coupling not in COUPLINGS:
+            out.append(f"unknown coupling '{self.coupling}'; choose one of "
+                       f"{', '.join(COUPLINGS)}")
+        elif self.coupling != "explicit" and self.name == "multirate":
+            out.append(f"coupling '{self.coupling}' iterates the steps of the jacobi and "
+                       "gauss-seidel masters, not multirate")
+        if not (self.coupling_tol > 0 and math.isfinite(self.coupling_tol)):
+            out.append(f"coupling_tol must be a positive number, got {self.coupling_tol}")
+        if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
+            out.append(f"max_iterations must be a whole number >= 1, got {self.max_iterations}")
         return out
 
 
@@ -234,6 +262,9 @@ class Master:
         self._hold = np.flatnonzero(self.discrete)
         self.assumed = np.zeros(system.n_outputs)
         self.last = np.zeros(system.n_outputs)
+        self.iteration = _iteration(system, options)
+        # the values iterated on (strong coupling): those some receiver takes extrapolated
+        self._unknowns = self.predicted & ~self.discrete
 
     def _predicted_columns(self) -> np.ndarray:
         """Outputs that some receiver uses *extrapolated* over a step (not yet computed).
@@ -309,8 +340,18 @@ class Master:
         earlier attempt of the same step) turns extrapolation into interpolation: the corrector
         of a predictor–corrector step. After the step, :attr:`assumed` holds the value at
         ``t + h`` of the input polynomial each output was assumed to follow (see
-        :attr:`predicted` for which outputs were actually extrapolated).
+        :attr:`predicted` for which outputs were actually extrapolated). With strong coupling
+        the step is repeated until its end values agree (:mod:`cosimstep.iteration`).
         """
+        if self.iteration is None:
+            return self._pass(t, h, times, history, order, end)
+        return self.iteration.run(
+            lambda x: self._pass(t, h, times, history, order, end if x is None else x),
+            self.save, self.restore, lambda: self.assumed, self._unknowns, t, h)
+
+    def _pass(self, t: float, h: float, times: Sequence[float], history: np.ndarray,
+              order: int | None, end: np.ndarray | None) -> np.ndarray:
+        """One pass of the step: every sub-model once (see :meth:`step`)."""
         p = self.options.extrapolation if order is None else order
         if end is None:
             coef = taylor_coefficients(times, history, t, p)
@@ -394,7 +435,8 @@ class Master:
         if self.options.extrapolation != 0 or self.options.name not in ("jacobi",
                                                                          "gauss-seidel"):
             return None
-        if any(m.capabilities.has_direct_feedthrough for m in self.system.models):
+        if self.iteration is not None or any(m.capabilities.has_direct_feedthrough
+                                             for m in self.system.models):
             return None
         return _HeldKernel(self)
 
@@ -414,7 +456,8 @@ class Master:
         if self.options.extrapolation == 0 or self.options.name not in ("jacobi",
                                                                          "gauss-seidel"):
             return None
-        if any(m.capabilities.has_direct_feedthrough for m in self.system.models):
+        if self.iteration is not None or any(m.capabilities.has_direct_feedthrough
+                                             for m in self.system.models):
             return None
         return _ExtrapolatingKernel(self)
 
@@ -460,6 +503,19 @@ class Master:
     @property
     def max_step(self) -> float:
         return min((m.capabilities.max_step for m in self.system.models), default=math.inf)
+
+
+def _iteration(system: CompiledSystem, options: MasterOptions) -> Iteration | None:
+    """Strong coupling's iteration, or ``None`` for explicit coupling; ``ValueError`` if a
+    sub-model cannot go back to the step's start."""
+    if options.coupling == "explicit":
+        return None
+    unable = [n for n, m in zip(system.names, system.models) if not m.capabilities.can_save_state]
+    if unable:
+        raise ValueError(f"coupling '{options.coupling}' repeats every step from the saved "
+                         f"states, but {', '.join(unable)} cannot save and restore its state")
+    return Iteration(options.coupling, options.coupling_tol, options.max_iterations,
+                     system.output_names)
 
 
 class _HeldKernel:

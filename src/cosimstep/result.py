@@ -69,6 +69,10 @@ class SimulationResult:
     """Calls the estimate cost (the looser run of ``estimate="rerun"``), not in ``calls``."""
     events: list[Event] = field(default_factory=list)
     """The events of discrete-event sub-models, in time order (:mod:`cosimstep.events`)."""
+    coupling: dict[str, Any] | None = None
+    """Strong coupling (:mod:`cosimstep.iteration`): steps, passes (``iterations``, every pass
+    calls every sub-model once), the most in one step and the largest converged residual;
+    ``None`` for explicit coupling."""
     traceback: str | None = field(default=None, repr=False)
     """A failed run's traceback, the sub-model's own exception included (``run -v`` prints
     it; the message names the model, the time and the reason)."""
@@ -112,6 +116,10 @@ class SimulationResult:
         if self.error is not None:
             out["error"] = self.error.to_dict()
         out["models"] = {n: m.to_dict() for n, m in self.models.items()}
+        if self.coupling is not None:
+            out["iterations"] = {k: self.coupling[k] for k in
+                                 ("iterations", "iterations_max", "iterations_per_step")}
+            out["residual_max"] = self.coupling["residual_max"]
         return out
 
     def text(self, name: str) -> list[str | bytes]:

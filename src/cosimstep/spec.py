@@ -41,6 +41,9 @@ class MasterSection(Section):
     call_timeout: float = DEFAULT_CALL_TIMEOUT
     interpolation: str | None = None
     resync: str = "partial"
+    coupling: str = "explicit"
+    coupling_tol: float = 1e-8
+    max_iterations: int = 50
 
 
 class ControllerSection(BaseModel):
@@ -133,7 +136,8 @@ def _master(body: Any, system: System, where: str, problems: list[Problem]) -> M
         return MasterOptions()
     master = MasterOptions(sec.name, sec.extrapolation,
                            tuple(sec.order) if sec.order else None, sec.call_timeout,
-                           sec.interpolation, sec.resync)
+                           sec.interpolation, sec.resync, sec.coupling, sec.coupling_tol,
+                           sec.max_iterations)
     problems.extend(Problem(where, p) for p in master.problems())
     for m in sec.order or []:
         if m not in system.models:
