@@ -429,6 +429,8 @@ def validate(system: str) -> None:
     click.echo(f"{system}: ok — {len(spec.system.models)} models, "
                f"{len(spec.system.connections)} connections"
                + (", with monolithic reference" if spec.reference else ""))
+    for ports in spec.system.loops():  # solved at every communication point, not refused
+        click.echo(f"algebraic loop (solved at every communication point): {', '.join(ports)}")
 
 
 @main.command()

@@ -65,6 +65,30 @@ class CouplingError(SubModelError):
         RuntimeError.__init__(self, f"{self.reason} (step from t = {t:.9g} to {t + h:.9g})")
 
 
+class LoopError(SubModelError):
+    """An algebraic loop could not be solved at a communication point."""
+
+    def __init__(self, t: float, outputs: list[str], residual: float, why: str) -> None:
+        self.model, self.t, self.h, self.residual = "loop", t, None, residual
+        self.reason = (f"the algebraic loop through {', '.join(outputs)} was not solved: "
+                       f"residual {residual:.3g} ({why})")
+        RuntimeError.__init__(self, f"{self.reason} at t = {t:.9g}")
+
+
+@dataclass
+class LoopStats:
+    """What solving the algebraic loops cost: solves (one per loop and communication point),
+    evaluations of the loop's models (set inputs, get outputs: no step, no call)."""
+
+    solves: int = 0
+    evaluations: int = 0
+    residual_max: float = 0.0
+
+    def to_dict(self) -> dict[str, float | int]:
+        return {"solves": self.solves, "evaluations": self.evaluations,
+                "residual_max": self.residual_max}
+
+
 @dataclass
 class IterationStats:
     """What the iterations of a run cost: passes (each calls every sub-model once)."""
@@ -213,4 +237,5 @@ class Iteration:
         return y
 
 
-__all__ = ["COUPLINGS", "CouplingError", "Iteration", "IterationStats"]
+__all__ = ["COUPLINGS", "CouplingError", "Iteration", "IterationStats", "LoopError",
+           "LoopStats"]

@@ -29,7 +29,7 @@ from cosimstep.extrapolation import (
     step_derivative_weights,
     taylor_coefficients,
 )
-from cosimstep.iteration import COUPLINGS, Iteration
+from cosimstep.iteration import COUPLINGS, Iteration, LoopError, LoopStats
 from cosimstep.system import CompiledSystem
 
 MASTERS = ("jacobi", "gauss-seidel", "multirate")
@@ -263,6 +263,7 @@ class Master:
         self.assumed = np.zeros(system.n_outputs)
         self.last = np.zeros(system.n_outputs)
         self.iteration = _iteration(system, options)
+        self.loop_stats = LoopStats()
         # the values iterated on (strong coupling): those some receiver takes extrapolated
         self._unknowns = self.predicted & ~self.discrete
 
@@ -462,12 +463,52 @@ class Master:
         return _ExtrapolatingKernel(self)
 
     def _settle_feedthrough(self, t: float, y: np.ndarray) -> None:
-        """Refresh direct-feedthrough outputs from inputs at ``t`` (no step, no call)."""
+        """Refresh direct-feedthrough outputs from inputs at ``t`` (no step, no call); the
+        models of an algebraic loop together (:meth:`_solve_loop`)."""
         system = self.system
+        loops = {loop[0]: loop for loop in system.loops}
         for k in system.feedthrough_order:
-            u = self._route(k, y[system.src[k]])
-            self._guard(k, t, system.models[k].set_inputs, u)
-            y[system.output_slices[k]] = self._outputs(k, t, None)
+            if k in loops:
+                self._solve_loop(loops[k], t, y)
+            elif not any(k in loop for loop in system.loops):
+                u = self._route(k, y[system.src[k]])
+                self._guard(k, t, system.models[k].set_inputs, u)
+                y[system.output_slices[k]] = self._outputs(k, t, None)
+
+    def _solve_loop(self, models: tuple[int, ...], t: float, y: np.ndarray) -> None:
+        """The outputs of an algebraic loop's models at ``t``: the values ``z`` that the models
+        give back when their inputs are taken from ``z`` (and the other values in ``y``),
+        solved by SciPy's ``root`` (MINPACK's hybrid Powell method, a finite-difference
+        Jacobian) from the values the outputs have now. Plain substitution, the explicit
+        masters' one pass, diverges or stalls on a loop whose gain exceeds one."""
+        from scipy.optimize import root
+
+        system = self.system
+        cols = np.concatenate([np.arange(system.output_slices[k].start,
+                                         system.output_slices[k].stop) for k in models])
+        trial = y.copy()
+        stats = self.loop_stats
+
+        def through(z: np.ndarray) -> np.ndarray:
+            trial[cols] = z
+            stats.evaluations += 1
+            for k in models:
+                self._guard(k, t, system.models[k].set_inputs,
+                            self._route(k, trial[system.src[k]]))
+            return np.concatenate([self._outputs(k, t, None) for k in models])
+
+        tol = self.options.coupling_tol
+        solution = root(lambda z: through(z) - z, y[cols], method="hybr",
+                        options={"xtol": tol})
+        out = through(solution.x)  # the models' inputs left at the solution
+        residual = np.abs(out - solution.x) / (tol * (1.0 + np.abs(out)))
+        worst = float(np.max(residual)) if residual.size else 0.0
+        if not worst <= 1.0:
+            raise LoopError(t, [system.output_names[j] for j in cols], worst * tol,
+                            str(solution.message))
+        y[cols] = out
+        stats.solves += 1
+        stats.residual_max = max(stats.residual_max, worst * tol)
 
     def _check_finite(self, models: Any, t: float, y: np.ndarray,
                       h: float | None = None) -> None:

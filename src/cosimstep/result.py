@@ -73,6 +73,9 @@ class SimulationResult:
     """Strong coupling (:mod:`cosimstep.iteration`): steps, passes (``iterations``, every pass
     calls every sub-model once), the most in one step and the largest converged residual;
     ``None`` for explicit coupling."""
+    loops: dict[str, Any] | None = None
+    """Algebraic loops (solved at every communication point): solves, evaluations of the
+    loops' models and the largest residual; ``None`` without loops."""
     traceback: str | None = field(default=None, repr=False)
     """A failed run's traceback, the sub-model's own exception included (``run -v`` prints
     it; the message names the model, the time and the reason)."""
@@ -120,6 +123,8 @@ class SimulationResult:
             out["iterations"] = {k: self.coupling[k] for k in
                                  ("iterations", "iterations_max", "iterations_per_step")}
             out["residual_max"] = self.coupling["residual_max"]
+        if self.loops is not None:
+            out["loops"] = dict(self.loops)
         return out
 
     def text(self, name: str) -> list[str | bytes]:

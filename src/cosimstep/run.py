@@ -595,12 +595,17 @@ class Run:
             wall_s=wall, time_in_models=out.time_in_models,
             store=str(self.store) if self.store is not None else None, error=err,
             reference=ref_values, models=out.models, error_estimate=out.error_estimate,
-            events=out.events, coupling=self._coupling_stats())
+            events=out.events, coupling=self._coupling_stats(), loops=self._loop_stats())
 
     def _coupling_stats(self) -> dict[str, Any] | None:
         """Strong coupling's passes and residuals (:mod:`cosimstep.iteration`), if iterated."""
         iterated = [m.iteration for m in self.scheme.masters() if m.iteration is not None]
         return iterated[0].stats.to_dict() if iterated else None
+
+    def _loop_stats(self) -> dict[str, Any] | None:
+        """What solving the algebraic loops cost, if the system has any."""
+        solving = [m for m in self.scheme.masters() if m.system.loops]
+        return solving[0].loop_stats.to_dict() if solving else None
 
 
 class Terminated(KeyboardInterrupt):

@@ -63,6 +63,23 @@ def _article(word: str) -> str:
     return "an" if word[0] in "aeiou" else "a"
 
 
+def _components(graph: dict[str, set[str]]) -> list[set[str]]:
+    """Strongly connected components of a dependency graph (SciPy's csgraph)."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    nodes = sorted(set(graph) | {d for deps in graph.values() for d in deps})
+    at = {n: i for i, n in enumerate(nodes)}
+    edges = [(at[n], at[d]) for n, deps in graph.items() for d in deps]
+    rows, cols = zip(*edges) if edges else ((), ())
+    adjacency = csr_matrix((np.ones(len(edges)), (rows, cols)), shape=(len(nodes), len(nodes)))
+    count, labels = connected_components(adjacency, directed=True, connection="strong")
+    out: list[set[str]] = [set() for _ in range(count)]
+    for node, label in zip(nodes, labels, strict=True):
+        out[label].add(node)
+    return out
+
+
 def split_address(address: str) -> tuple[str, str]:
     """``"model.port"`` → ``("model", "port")``; the port part may itself contain dots."""
     model, sep, port = address.partition(".")
@@ -88,6 +105,10 @@ class CompiledSystem:
     a: list[np.ndarray]
     b: list[np.ndarray]
     feedthrough_order: list[int]
+    loops: list[tuple[int, ...]] = field(default_factory=list)
+    """Algebraic loops: the direct-feedthrough models of each, solved together at every
+    communication point (:meth:`~cosimstep.masters.Master.settle`). ``feedthrough_order``
+    lists every feedthrough model once, a loop's models together, in the order to settle."""
 
     @property
     def n_outputs(self) -> int:
@@ -139,7 +160,6 @@ class System:
                         self.origins[name],
                         f"input '{name}.{port.name}' is not connected and has no start value",
                         "connect an output to it or give it a start value"))
-        problems.extend(self._loop_problems())
         return problems
 
     def _check_connection(self, c: Connection,
@@ -237,15 +257,30 @@ class System:
                 graph.setdefault(f"{name}.{out}", set()).update(f"{name}.{i}" for i in ins)
         return graph
 
-    def _loop_problems(self) -> list[Problem]:
-        try:
-            tuple(graphlib.TopologicalSorter(self._port_graph()).static_order())
-        except graphlib.CycleError as exc:
-            cycle = " -> ".join(exc.args[1])
-            return [Problem("connections", f"algebraic loop through direct-feedthrough ports: "
-                            f"{cycle}", "break the loop with a model that has no direct "
-                            "feedthrough, or remove one connection")]
-        return []
+    def loops(self) -> list[list[str]]:
+        """The algebraic loops: each a cycle of ports through direct feedthrough (the ports
+        of one strongly connected component of :meth:`_port_graph`, sorted)."""
+        return [sorted(c) for c in _components(self._port_graph()) if len(c) > 1]
+
+    def _settle_blocks(self, names: list[str]) -> list[tuple[int, ...]]:
+        """The feedthrough models to settle, in dependency order: one model alone, or the
+        models of an algebraic loop together (strongly connected components of the port
+        graph, condensed and sorted topologically)."""
+        graph = self._port_graph()
+        components = _components(graph)
+        of = {node: i for i, c in enumerate(components) for node in c}
+        condensed: dict[int, set[int]] = {i: set() for i in range(len(components))}
+        for node, deps in graph.items():
+            condensed[of[node]].update(of[d] for d in deps if of[d] != of[node])
+        blocks: list[tuple[int, ...]] = []
+        for i in graphlib.TopologicalSorter(condensed).static_order():
+            models = sorted({names.index(m) for m, _, port in
+                             (n.partition(".") for n in components[i])
+                             if m in self.models
+                             and self.models[m].capabilities.feedthrough.get(port)})
+            if models and not any(k in b for b in blocks for k in models):
+                blocks.append(tuple(models))
+        return blocks
 
     def validate(self) -> None:
         """Raise :class:`ConfigurationError` listing every problem, if there is any."""
@@ -288,11 +323,10 @@ class System:
             src.append(s)
             a.append(ga)
             b.append(gb)
-        order: list[int] = []
-        sorter = graphlib.TopologicalSorter(self._port_graph())
-        for node in sorter.static_order():
-            model_name = node.partition(".")[0]
-            k = names.index(model_name) if model_name in self.models else -1
-            if k >= 0 and models[k].capabilities.has_direct_feedthrough and k not in order:
-                order.append(k)
-        return CompiledSystem(names, models, slices, out_names, out_units, src, a, b, order)
+        blocks = self._settle_blocks(names)
+        loop_ports = self.loops()
+        loops = [b for b in blocks if len(b) > 1 or any(
+            p.partition(".")[0] == names[b[0]] for c in loop_ports for p in c)]
+        order = [k for b in blocks for k in b]
+        return CompiledSystem(names, models, slices, out_names, out_units, src, a, b, order,
+                              loops)
