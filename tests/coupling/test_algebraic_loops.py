@@ -78,3 +78,41 @@ def test_a_loop_under_each_coupling(coupling: str) -> None:
                                 cosimstep.MasterOptions(coupling=coupling))
     assert result.success, result.message
     assert np.max(np.abs(result["a.y"] - (1 + result.times) / 4)) < 1e-9
+
+
+def test_a_nonlinear_loop_across_two_fmus_is_solved_to_1e_10(tmp_path) -> None:
+    """C FMUs `loop_linear` (a, b from a + b + c = 0 and 2a - 3b + 2c = 9 given c) and
+    `loop_sphere` (c = sqrt(5 - a^2 - b^2)): solved at every point to a residual below 1e-10,
+    at c = (3.6 + sqrt(1.12)) / 4. Measured: 39 evaluations for the 4 points (most at the
+    first; later points start from the solution); plain substitution from the same start
+    takes 86 to reach 1e-12. Also from a system file, where `validate` lists the loop."""
+    from click.testing import CliRunner
+
+    from cosimstep.adapters.fmu import FmuSubModel
+    from cosimstep.cli import main
+    from cosimstep.fmu.build import build_fmu
+
+    system = cosimstep.System().add("lin", FmuSubModel(build_fmu("loop_linear")))
+    system.add("sph", FmuSubModel(build_fmu("loop_sphere")))
+    system.connect("lin.a", "sph.a").connect("lin.b", "sph.b").connect("sph.c", "lin.c")
+    result = cosimstep.simulate(system, 0.3, cosimstep.Fixed(0.1),
+                                cosimstep.MasterOptions(coupling_tol=1e-12))
+    assert result.success, result.message
+    a, b, c = result["lin.a"], result["lin.b"], result["sph.c"]
+    for residual in (a + b + c, 2 * a - 3 * b + 2 * c - 9, a**2 + b**2 + c**2 - 5):
+        assert np.max(np.abs(residual)) < 1e-10
+    assert np.allclose(c, (3.6 + np.sqrt(1.12)) / 4, rtol=0, atol=1e-12)
+    assert result.loops["solves"] == 4 and result.loops["evaluations"] < 60
+    text = ('until = 0.3\n[models.lin]\ntype = "fmu"\nrecipe = "loop_linear"\n'
+            '[models.sph]\ntype = "fmu"\nrecipe = "loop_sphere"\n'
+            '[[connections]]\nfrom = "lin.a"\nto = "sph.a"\n'
+            '[[connections]]\nfrom = "lin.b"\nto = "sph.b"\n'
+            '[[connections]]\nfrom = "sph.c"\nto = "lin.c"\n'
+            '[controller]\nname = "fixed"\nstep = 0.1\n')
+    (tmp_path / "loop.toml").write_text(text)
+    res = CliRunner().invoke(main, ["validate", str(tmp_path / "loop.toml")])
+    assert res.exit_code == 0, res.output
+    assert "algebraic loop (solved at every communication point): lin.a, lin.b" in res.output
+    res = CliRunner().invoke(main, ["run", str(tmp_path / "loop.toml"), "--no-store", "--json"])
+    assert res.exit_code == 0, res.output
+    assert '"loops"' in res.output

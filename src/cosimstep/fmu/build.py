@@ -177,6 +177,11 @@ RECIPES: dict[str, Recipe] = {
                     {"KIND": "1"}),
     "echo": Recipe(C_DIR / "echo.xml", (C_DIR / "discrete_io.c",), (C_DIR / "fmi2.h",),
                    {"KIND": "2"}),
+    # the two halves of a nonlinear algebraic loop across FMUs (direct feedthrough both)
+    "loop_linear": Recipe(C_DIR / "loop_linear.xml", (C_DIR / "discrete_io.c",),
+                          (C_DIR / "fmi2.h",), {"KIND": "3"}),
+    "loop_sphere": Recipe(C_DIR / "loop_sphere.xml", (C_DIR / "discrete_io.c",),
+                          (C_DIR / "fmi2.h",), {"KIND": "4"}),
     # FMI 3.0 arrays: der(x) = A x + B u, y = C x + D u (model exchange and co-simulation)
     "statespace3": Recipe(C_DIR / "statespace3.xml", (C_DIR / "statespace3.c",),
                           _FMI3_HEADERS),

@@ -13,6 +13,13 @@
  *   output `s_out` the same way, and Real output `x`, the integral of the integer input (exact
  *   for an input held over each step: x += n h).
  *
+ * -DKIND=3, "loop_linear" and -DKIND=4, "loop_sphere": the two halves of a nonlinear algebraic
+ *   loop (issue 18). loop_linear computes Real outputs a, b from a + b + c = 0 and
+ *   2a - 3b + 2c = 9 given its Real input c; loop_sphere computes c = sqrt(5 - a^2 - b^2) from
+ *   a^2 + b^2 + c^2 = 5 given its inputs a, b (NaN where there is no real root). Both have direct
+ *   feedthrough; connected both ways they form the loop, whose roots are a = 1.8 - c, b = -1.8,
+ *   2c^2 - 3.6c + 1.48 = 0: c = (3.6 + sqrt(1.12)) / 4 = 1.1645751... or (3.6 - sqrt(1.12)) / 4.
+ *
  * FMU state get/set/serialize are offered (the state is a flat struct).
  */
 #include <math.h>
@@ -23,14 +30,18 @@
 
 #include "fmi2.h"
 
-#if !defined(KIND) || (KIND != 1 && KIND != 2)
-#error "compile with -DKIND=1 (stair) or -DKIND=2 (echo)"
+#if !defined(KIND) || KIND < 1 || KIND > 4
+#error "compile with -DKIND=1 (stair), 2 (echo), 3 (loop_linear) or 4 (loop_sphere)"
 #endif
 
 #if KIND == 1
 #define MODEL_GUID "{5d0c7a21-6e3b-4c8f-a1d2-7b9e3f0c2a11}"
-#else
+#elif KIND == 2
 #define MODEL_GUID "{5d0c7a21-6e3b-4c8f-a1d2-7b9e3f0c2a12}"
+#elif KIND == 3
+#define MODEL_GUID "{5d0c7a21-6e3b-4c8f-a1d2-7b9e3f0c2a13}"
+#else
+#define MODEL_GUID "{5d0c7a21-6e3b-4c8f-a1d2-7b9e3f0c2a14}"
 #endif
 
 #define LABEL_SIZE 64
@@ -38,7 +49,7 @@
 
 /* Value references, as in the model descriptions: reals, integers, booleans, strings each
  * counted from 0 (FMI 2.0 value references are per type). */
-enum { R_PERIOD = 0, R_X = 1, N_REAL };
+enum { R_PERIOD = 0, R_X = 1, R_A = 2, R_B = 3, R_C = 4, N_REAL };
 enum { I_COUNTER = 0, I_N = 1, I_N_OUT = 2, I_STOP = 3, N_INT };
 enum { B_ODD = 0, B_B = 1, B_B_OUT = 2, N_BOOL };
 enum { S_LABEL = 0, S_WORD = 1, S_S = 2, S_S_OUT = 3, N_STRING };
@@ -92,6 +103,12 @@ static void feedthrough(State *s) {
     s->i[I_N_OUT] = s->i[I_N];
     s->b[B_B_OUT] = s->b[B_B];
     strcpy(s->str[S_S_OUT], s->str[S_S]);
+#elif KIND == 3
+    /* a + b = -c and 2a - 3b = 9 - 2c, by Cramer's rule (determinant -5) */
+    s->r[R_A] = (-3.0 * -s->r[R_C] - (9.0 - 2.0 * s->r[R_C])) / -5.0;
+    s->r[R_B] = ((9.0 - 2.0 * s->r[R_C]) - 2.0 * -s->r[R_C]) / -5.0;
+#elif KIND == 4
+    s->r[R_C] = sqrt(5.0 - s->r[R_A] * s->r[R_A] - s->r[R_B] * s->r[R_B]);
 #else
     (void)s;
 #endif
@@ -123,6 +140,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     inst->name = malloc(strlen(instanceName ? instanceName : "") + 1);
     if (inst->name) strcpy(inst->name, instanceName ? instanceName : "");
     inst->s.r[R_PERIOD] = 1.0;
+    inst->s.r[R_C] = KIND == 3 ? 1.0 : 0.0; /* loop_linear's input c starts at 1 */
     strcpy(inst->s.str[S_LABEL], "stair");
     stair(&inst->s, 0.0);
     return inst;
