@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from functools import partial
 
 from cosimstep.adapters.ode import InternalSolver, ParameterSchedule
-from cosimstep.models import bouncing, linear, pendulum, thermal
+from cosimstep.models import bouncing, linear, oscillators, pendulum, thermal
 from cosimstep.submodel import SubModel
 
 Builder = Callable[[ParameterSchedule, Mapping[str, float], InternalSolver | None], SubModel]
@@ -76,3 +76,14 @@ register(ModelKind("bouncing_ball.ball", "the ball: h, v and the impulse J given
 register(ModelKind("bouncing_ball.damper", "spring-damper under the ground: M x'' = -k x - c x' "
                    "+ dJ/dt (input J)", bouncing.default_parameters(), bouncing.START,
                    bouncing.damper))
+
+register(ModelKind("oscillators", "two oscillators joined by a spring-damper (problem 7), "
+                   "monolithic", oscillators.default_parameters(), oscillators.START,
+                   oscillators.monolithic))
+register(ModelKind("oscillators.mass1", "mass 1: m1 x1'' = -k1 x1 - c1 v1 - F (input F)",
+                   oscillators.default_parameters(), oscillators.START, oscillators.mass1))
+register(ModelKind("oscillators.mass2", "mass 2: m2 x2'' = -k2 x2 - c2 v2 + F (input F)",
+                   oscillators.default_parameters(), oscillators.START, oscillators.mass2))
+register(ModelKind("oscillators.spring", "the coupling spring-damper: F = k (x1 - x2) + "
+                   "c (v1 - v2), direct feedthrough (inputs x1, v1, x2, v2)",
+                   oscillators.default_parameters(), oscillators.START, oscillators.spring))
