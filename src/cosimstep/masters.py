@@ -264,6 +264,7 @@ class Master:
         self.last = np.zeros(system.n_outputs)
         self.iteration = _iteration(system, options)
         self.loop_stats = LoopStats()
+        self._loop_of = {k: loop for loop in system.loops for k in loop}  # model -> its loop
         # the values iterated on (strong coupling): those some receiver takes extrapolated
         self._unknowns = self.predicted & ~self.discrete
 
@@ -466,11 +467,12 @@ class Master:
         """Refresh direct-feedthrough outputs from inputs at ``t`` (no step, no call); the
         models of an algebraic loop together (:meth:`_solve_loop`)."""
         system = self.system
-        loops = {loop[0]: loop for loop in system.loops}
         for k in system.feedthrough_order:
-            if k in loops:
-                self._solve_loop(loops[k], t, y)
-            elif not any(k in loop for loop in system.loops):
+            loop = self._loop_of.get(k)
+            if loop is not None:
+                if k == loop[0]:  # a loop's models are solved together, at its first
+                    self._solve_loop(loop, t, y)
+            else:
                 u = self._route(k, y[system.src[k]])
                 self._guard(k, t, system.models[k].set_inputs, u)
                 y[system.output_slices[k]] = self._outputs(k, t, None)
