@@ -27,7 +27,7 @@ from cosimstep.controllers import (
 )
 from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.iteration import COUPLINGS
-from cosimstep.masters import MASTERS, RESYNC, MasterOptions
+from cosimstep.masters import COUPLING_INPUTS, MASTERS, RESYNC, MasterOptions
 from cosimstep.simulate import SimulationResult, simulate
 
 EXIT_FAILED, EXIT_CONFIG = 1, 2
@@ -69,6 +69,10 @@ def main() -> None:
               "exchanged value's residual is within TOL * (1 + |value|) (default 1e-8).")
 @click.option("--max-iterations", type=int, help="Strong coupling: passes per step before it "
               "fails (default 50).")
+@click.option("--coupling-input", type=click.Choice(COUPLING_INPUTS), help="Strong coupling: "
+              "inputs over a step follow the polynomial through the iterated end value "
+              "(polynomial, default: accurate) or are held at the mean of the two end values "
+              "(trapezoidal: stable at steps far beyond a stiff coupling's period).")
 @click.option("--controller", type=click.Choice(sorted(CONTROLLERS)), help="Step controller.")
 @click.option("--step", type=float, help="Fixed step (controller fixed) or initial step [s].")
 @click.option("--tol", type=float,
@@ -128,7 +132,8 @@ def main() -> None:
               "(the exit code says the rest).")
 def run(system: str, until: float | None, master: str | None, extrapolation: int | None,
         interpolation: str | None, resync: str | None, coupling: str | None,
-        coupling_tol: float | None, max_iterations: int | None, controller: str | None,
+        coupling_tol: float | None, max_iterations: int | None, coupling_input: str | None,
+        controller: str | None,
         step: float | None, tol: float | None, estimate: str, seed: int | None,
         options: tuple[str, ...], params: tuple[str, ...], starts: tuple[str, ...],
         out: str | None, no_store: bool, max_wall: float | None, max_calls: int | None,
@@ -162,7 +167,7 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
                   budget={"max_wall": max_wall, "max_calls": max_calls, **checkpoints},
                   resync=resync, progress=False if quiet else None, call_timeout=call_timeout,
                   coupling={"coupling": coupling, "coupling_tol": coupling_tol,
-                            "max_iterations": max_iterations},
+                            "max_iterations": max_iterations, "coupling_input": coupling_input},
                   output=(output_interval, output_steps))
     if quiet and not as_json:
         click.echo(f"status: {result.status} — {result.message}")
@@ -323,15 +328,17 @@ def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | N
                     call_timeout: float | None = None,
                     coupling: dict[str, Any] | None = None) -> MasterOptions:
     """The file's ``[master]`` with the command line's choices on top (exit 2 if invalid);
-    ``call_timeout`` 0 lifts the limit; ``coupling``: ``coupling``, ``coupling_tol`` and
-    ``max_iterations`` given on the command line (``None``: the file's)."""
+    ``call_timeout`` 0 lifts the limit; ``coupling``: ``coupling``, ``coupling_tol``,
+    ``max_iterations`` and ``coupling_input`` given on the command line (``None``: the
+    file's)."""
     opts = spec.master
     timeout = opts.call_timeout if call_timeout is None else call_timeout
     opts = MasterOptions(master or opts.name,
                          opts.extrapolation if extrapolation is None else extrapolation,
                          opts.order, timeout, interpolation or opts.interpolation,
                          resync or opts.resync)
-    strong = {k: getattr(spec.master, k) for k in ("coupling", "coupling_tol", "max_iterations")}
+    strong = {k: getattr(spec.master, k) for k in ("coupling", "coupling_tol", "max_iterations",
+                                                   "coupling_input")}
     strong.update({k: v for k, v in (coupling or {}).items() if v is not None})
     opts = dataclasses.replace(opts, **strong)
     problems = [Problem("master", p, "see `cosimstep run --help`") for p in opts.problems()]

@@ -34,6 +34,7 @@ from cosimstep.system import CompiledSystem
 
 MASTERS = ("jacobi", "gauss-seidel", "multirate")
 RESYNC = ("partial", "complete")
+COUPLING_INPUTS = ("polynomial", "trapezoidal")
 
 
 DEFAULT_CALL_TIMEOUT = 60.0
@@ -79,6 +80,14 @@ class MasterOptions:
     max_iterations:
         Passes per step before the step counts as failed (:class:`~cosimstep.iteration.
         CouplingError`).
+    coupling_input:
+        Strong coupling only: what a sub-model receives over a step. ``"polynomial"``
+        (default): the interpolant of order ``extrapolation`` through the stored points and the
+        iterated end value. ``"trapezoidal"``: the mean of the values at the step's two ends,
+        held — the trapezoidal rule on the interface, A-stable where the converged polynomial
+        is only conditionally stable (a mass driven by a linear force ramp is Newmark's linear
+        acceleration method, unstable beyond ω ΔT = 2√3; driven by the mean force it is the
+        average acceleration method, stable at every step; see docs/concepts.md).
     """
 
     name: str = "gauss-seidel"
@@ -90,6 +99,7 @@ class MasterOptions:
     coupling: str = "explicit"
     coupling_tol: float = 1e-8
     max_iterations: int = 50
+    coupling_input: str = "polynomial"
 
     def problems(self) -> list[str]:
         out = []
@@ -123,6 +133,12 @@ class MasterOptions:
             out.append(f"coupling_tol must be a positive number, got {self.coupling_tol}")
         if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
             out.append(f"max_iterations must be a whole number >= 1, got {self.max_iterations}")
+        if self.coupling_input not in COUPLING_INPUTS:
+            out.append(f"unknown coupling_input '{self.coupling_input}'; choose one of "
+                       f"{', '.join(COUPLING_INPUTS)}")
+        elif self.coupling_input != "polynomial" and self.coupling == "explicit":
+            out.append(f"coupling_input '{self.coupling_input}' needs the end values of an "
+                       "iterated step: choose a strong coupling (fixed-point, aitken, iqn-ils)")
         return out
 
 
@@ -367,6 +383,7 @@ class Master:
             coef[1] = self._dy0  # start-up: grey-box slopes instead of a first-order hold
         self._held_discrete(coef, y_new)
         self.assumed = evaluate(coef, h)
+        poly, coef = coef, self._as_input(coef, h)  # the same array unless trapezoidal
         for k in self.sequence:
             self._step_model(k, t, h, coef)
             out = self.system.output_slices[k]
@@ -374,19 +391,32 @@ class Master:
             if gauss_seidel and model.capabilities.has_direct_feedthrough:
                 # its outputs must reflect inputs at t + h before later models interpolate them
                 src = self.system.src[k]
-                self._guard(k, t, model.set_inputs, self._route(k, evaluate(coef[:, src], h)),
+                self._guard(k, t, model.set_inputs, self._route(k, evaluate(poly[:, src], h)),
                             h=h)
             y_new[out] = self._outputs(k, t, h)
             if gauss_seidel:
                 # Later models see this model's fresh values: interpolate through t + h.
                 pts = [*times[-p:], t + h] if p > 0 else [t + h]
                 vals = np.vstack([history[-p:, out], y_new[out]]) if p > 0 else y_new[None, out]
-                coef[:, out] = taylor_coefficients(pts, vals, t, p)
-                self._held_discrete(coef, history[-1])
+                poly[:, out] = taylor_coefficients(pts, vals, t, p)
+                self._held_discrete(poly, history[-1])
+                if coef is not poly:
+                    coef[:, out] = self._as_input(poly[:, out], h)
         self._settle_feedthrough(t + h, y_new)
         self._check_finite(range(len(self.system.models)), t, y_new, h)
         self.last = y_new
         return y_new
+
+    def _as_input(self, coef: np.ndarray, h: float) -> np.ndarray:
+        """The input polynomial over the step as the sub-models receive it: as is, or under
+        ``coupling_input = "trapezoidal"`` the mean of its two end values, held (one row, so
+        every sub-model, whatever input derivatives it takes, sees the same constant)."""
+        if self.options.coupling_input != "trapezoidal":
+            return coef
+        mean = 0.5 * (coef[0] + evaluate(coef, h))
+        out = np.zeros_like(coef)
+        out[0] = mean
+        return out
 
     def _held_discrete(self, coef: np.ndarray, row: np.ndarray) -> None:
         """Discrete outputs keep their value at the step's start (``row``) over the step: a

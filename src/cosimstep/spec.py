@@ -44,6 +44,7 @@ class MasterSection(Section):
     coupling: str = "explicit"
     coupling_tol: float = 1e-8
     max_iterations: int = 50
+    coupling_input: str = "polynomial"
 
 
 class ControllerSection(BaseModel):
@@ -137,7 +138,7 @@ def _master(body: Any, system: System, where: str, problems: list[Problem]) -> M
     master = MasterOptions(sec.name, sec.extrapolation,
                            tuple(sec.order) if sec.order else None, sec.call_timeout,
                            sec.interpolation, sec.resync, sec.coupling, sec.coupling_tol,
-                           sec.max_iterations)
+                           sec.max_iterations, sec.coupling_input)
     problems.extend(Problem(where, p) for p in master.problems())
     for m in sec.order or []:
         if m not in system.models:
