@@ -370,6 +370,7 @@ class FixedLoop(_Loop):
         self.table = np.empty((rows, m))
         self.hs = np.empty(rows)
         self.lean: Any = None  # the master's lean step (_HeldKernel, _ExtrapolatingKernel)
+        self._block: tuple[int, float, list] | None = None  # the lean kernel's run under way
         self._state: tuple[float, float, int, int] | None = None  # set by the first turn
         self._stored = 0  # points handed to the store so far
         self._shown = 0  # steps shown on the progress bar so far
@@ -421,6 +422,12 @@ class FixedLoop(_Loop):
             if events:  # without events the landing is always the end time
                 event = _next_landing(events, t, until)
                 landing = min(event, limit)
+            if lean is not None and (not lean_after or n - segment >= lean_after):
+                run = self._lean_run(lean, t, n, h_plain, landing, clock, carry, due)
+                if run is not None:  # equal steps up to the landing step or the next batch
+                    t, n, clock, carry = run
+                    due = self._after_point(n, clock, carry, segment, due)
+                    continue
             h = h_plain
             if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
                 h = landing - t  # land exactly on the event / end time
@@ -449,12 +456,66 @@ class FixedLoop(_Loop):
             if t == event and t < until:
                 segment = n
                 runner.restart()
-            if n == due:
-                self._state = (clock, carry, segment, due)  # what a checkpoint captures
-                due = n + self._publish()
-                if self.budget:
-                    self.budget.check(self._calls())
+            due = self._after_point(n, clock, carry, segment, due)
         self._state = (clock, carry, segment, due)
+
+    def _after_point(self, n: int, clock: float, carry: float, segment: int, due: int) -> int:
+        """At the batch's last point: publish, check the budget; the next batch's end."""
+        if n != due:
+            return due
+        self._state = (clock, carry, segment, due)  # what a checkpoint captures
+        due = n + self._publish()
+        if self.budget:
+            self.budget.check(self._calls())
+        return due
+
+    def _lean_run(self, lean: Any, t: float, n: int, h: float, landing: float, clock: float,
+                  carry: float, due: int) -> tuple[float, int, float, float] | None:
+        """The equal steps of ``h`` from ``t`` before the one that lands (on an event, the end
+        or ``limit``), at most up to the next batch's end, in one call of the lean kernel.
+
+        The times are those the step-by-step loop computes (the same compensated sum and
+        landing tests), so the run is the same; what goes is the loop's bookkeeping per step.
+        Returns ``(t, n, clock, carry)`` after them, or ``None`` if there are none. If a step
+        fails, the points before it are kept, as the step-by-step loop keeps them.
+        """
+        cap = min(due - n, self.table.shape[0] - 1 - n)
+        starts: list[float] = []
+        ends: list[tuple[float, float, float]] = []
+        while len(starts) < cap:
+            gap = landing - t
+            if h >= gap * (1 - 1e-9) or gap - h < 1e-6 * h:
+                break  # this step lands: the step-by-step loop takes it
+            s = clock + h
+            c = carry + (((clock - s) + h) if abs(clock) >= abs(h) else ((h - s) + clock))
+            value = s + c
+            if abs(value - landing) <= 1e-9 * h:
+                break  # ends on the landing after all: likewise
+            starts.append(t)
+            ends.append((s, c, value))
+            clock, carry, t = s, c, value
+        if not starts:
+            return None
+        table = self.table
+        self._block = (n, h, ends)
+        try:
+            lean.steps(starts, h, n, table.reshape(-1), table.ctypes.data)
+        finally:
+            self._catch_up()
+        return self.t, self.n, *ends[-1][:2]
+
+    def _catch_up(self) -> None:
+        """Record the steps the lean kernel completed of the run it was given (all of them,
+        or those before a failure; also when a hung call was abandoned mid-run)."""
+        if self._block is None or self.lean is None:
+            return
+        n, h, ends = self._block
+        done = self.lean.done
+        if done:
+            self.times[n + 1:n + done + 1] = [e[2] for e in ends[:done]]
+            self.hs[n:n + done] = h
+            self.n, self.t = n + done, ends[done - 1][2]
+        self._block = None
 
     def snapshot(self) -> dict[str, Any]:
         """The loop's own state for a checkpoint (:mod:`cosimstep.checkpoint`): its clock and
@@ -525,6 +586,7 @@ class FixedLoop(_Loop):
             else self.BATCH
 
     def finish(self) -> None:
+        self._catch_up()
         if self.lean is not None:
             self.lean.sync()
             self.lean = None

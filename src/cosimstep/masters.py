@@ -323,7 +323,12 @@ class Master:
 
     def _outputs(self, k: int, t: float, h: float | None) -> np.ndarray:
         """Outputs of model ``k``, checked to be one float per declared output."""
-        values = self._guard(k, t, self.system.models[k].get_outputs, h=h)
+        return self._checked_outputs(k, t, h,
+                                     self._guard(k, t, self.system.models[k].get_outputs, h=h))
+
+    def _checked_outputs(self, k: int, t: float, h: float | None, values: Any) -> np.ndarray:
+        """``values`` from model ``k``'s ``get_outputs`` as one float per declared output, or
+        a :class:`SubModelError` saying what came back instead."""
         try:
             arr = np.asarray(values, dtype=float)
         except (TypeError, ValueError):
@@ -618,6 +623,9 @@ class _HeldKernel:
         gauss_seidel = master.options.name == "gauss-seidel"
         self.calls = [0] * len(system.models)  # added to the master's counts by :meth:`sync`
         self.time = [0.0] * len(system.models)
+        self.done = 0  # steps completed by the last call of :meth:`steps`
+        self._flat: np.ndarray | None = None
+        self._read_only = np.empty(0)
         self.plan = []
         for k in master.sequence:
             model = system.models[k]
@@ -627,19 +635,25 @@ class _HeldKernel:
             gather = src + m * fresh  # flat index into the table, relative to row n
             out = system.output_slices[k]
             raw = getattr(model, "_direct_io", lambda: None)()
-            in_offset = None  # the inputs' byte offset from row n, when no gather is needed
-            buffer = None
+            contiguous = src.size > 0 and np.array_equal(src, np.arange(src[0], src[0]
+                                                                        + src.size))
+            in_offset = None  # where the inputs start in the table from row n, when they are
+            buffer = None     # one run of columns passed on unchanged (no gather needed)
+            if contiguous and len(set(fresh.tolist())) == 1:
+                in_offset = int(src[0]) + m * int(fresh[0])
             if raw is not None:
-                contiguous = src.size > 0 and np.array_equal(src, np.arange(src[0], src[0]
-                                                                            + src.size))
-                if master._identity[k] and contiguous and len(set(fresh.tolist())) == 1:
-                    in_offset = 8 * (int(src[0]) + m * int(fresh[0]))
+                if in_offset is not None and master._identity[k]:
+                    in_offset *= 8  # a byte offset for the C call
                 else:
-                    buffer = np.zeros(src.size)
+                    in_offset, buffer = None, np.zeros(src.size)
                 raw = (*raw, 8 * out.start, buffer,
                        buffer.ctypes.data if buffer is not None else 0)
-            self.plan.append((k, model, raw, in_offset, gather, master._identity[k],
-                              system.a[k], system.b[k], out))
+            lo = hi = None  # the inputs' columns from row n's start, read as one slice
+            if raw is None and in_offset is not None:
+                lo, hi = in_offset, in_offset + src.size
+            self.plan.append((k, model, raw, in_offset, lo, hi, gather, master._identity[k],
+                              system.a[k], system.b[k], m + out.start, m + out.stop,
+                              (out.stop - out.start,)))
 
     def sync(self) -> None:
         """Add the counts so far to the master's (once, when the run ends)."""
@@ -654,55 +668,97 @@ class _HeldKernel:
         ``flat`` is the table as one flat array, ``base`` its address; a sub-model failure
         raises :class:`SubModelError` as :meth:`Master.step` does.
         """
+        self.steps((t,), h, n, flat, base)
+
+    def steps(self, times: Sequence[float], h: float, n: int, flat: np.ndarray,
+              base: int) -> None:
+        """Steps of ``h`` from each of ``times`` in turn, rows ``n`` to ``n + len(times)``.
+
+        One call for a run of equal steps saves the loop's bookkeeping per step; :attr:`done`
+        counts the steps completed, so a failure part-way keeps the rows before it.
+        """
         m = self.m
-        row = n * m
         calls, spent, clock = self.calls, self.time, time.perf_counter
         watch = self.master._watch
-        for k, model, raw, in_offset, gather, identity, a, b, out in self.plan:
-            if raw is not None:
-                (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
-                 out_offset, buffer, buffer_address) = raw
-                if in_offset is not None:
-                    address = base + 8 * row + in_offset
-                else:
-                    x = flat[gather + row]
-                    buffer[:] = x if identity else a * x + b
-                    address = buffer_address
+        if flat is not self._flat:  # read-only views of it for the Python sub-models' inputs
+            self._flat, self._read_only = flat, flat.view()
+            self._read_only.flags.writeable = False
+        read_only = self._read_only
+        self.done = 0
+        for i, t in enumerate(times):
+            row = (n + i) * m
+            for k, model, raw, in_offset, lo, hi, gather, identity, a, b, o0, o1, shape \
+                    in self.plan:
+                if raw is not None:
+                    self._fmu_step(k, t, h, row, flat, base, raw, in_offset, gather, identity,
+                                   a, b)
+                    continue
+                # one block of columns: a read-only view (no copy, and the stored values
+                # cannot be altered through it); else gathered
+                x = read_only[row + lo:row + hi] if lo is not None else flat[gather + row]
+                u = x if identity else a * x + b
                 calls[k] += 1
                 start = clock()
-                if watch is not None:  # Master._guard's stamps, inlined
+                if watch is not None:  # one stamp for the model's three calls
                     watch.where, watch.started = (k, t, h), start
-                status = set_real(component, in_vr, n_in, address)
-                if status > 1:
-                    self._fail(k, t, h, fail("fmi2SetReal", status))
-                status = do_step(component, t, h, 1)
-                if status > 1:
-                    self._fail(k, t, h, fail("fmi2DoStep", status))
+                try:
+                    model.set_inputs(u)
+                    model.do_step(t, h)
+                    y = model.get_outputs()
+                except Exception as exc:
+                    self._fail(k, t, h, exc)
                 spent[k] += clock() - start
-                status = get_real(component, out_vr, n_out, base + 8 * (row + m) + out_offset)
-                if status > 1:
-                    self._fail(k, t, h, fail("fmi2GetReal", status))
                 if watch is not None:
                     watch.started = 0.0
                     if watch.abandoned:
                         raise _Abandoned
-            else:
-                master = self.master
-                x = flat[gather + row]
-                u = x if identity else a * x + b
-                calls[k] += 1
-                start = clock()
-                master._guard(k, t, model.set_inputs, u, h=h)
-                master._guard(k, t, model.do_step, t, h, h=h)
-                spent[k] += clock() - start
-                flat[row + m + out.start:row + m + out.stop] = master._outputs(k, t, h)
-        new = flat[row + m:row + 2 * m]
-        if not math.isfinite(sum(new.tolist())):  # NaN or inf somewhere (or a sum overflow)
-            self.master._check_finite(range(len(self.plan)), t, new, h)
+                if type(y) is not np.ndarray or y.shape != shape:
+                    y = self.master._checked_outputs(k, t, h, y)
+                flat[row + o0:row + o1] = y
+            new = flat[row + m:row + 2 * m]
+            if not math.isfinite(sum(new.tolist())):  # NaN or inf somewhere (or overflow)
+                self.master._check_finite(range(len(self.plan)), t, new, h)
+            self.done = i + 1
+
+    def _fmu_step(self, k: int, t: float, h: float, row: int, flat: np.ndarray, base: int,
+                  raw: tuple, in_offset: int | None, gather: np.ndarray, identity: bool,
+                  a: np.ndarray, b: np.ndarray) -> None:
+        """One FMU's step through its raw C calls, inputs from row ``row`` (a flat index),
+        outputs straight into the next row."""
+        (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
+         out_offset, buffer, buffer_address) = raw
+        if in_offset is not None:
+            address = base + 8 * row + in_offset
+        else:
+            x = flat[gather + row]
+            buffer[:] = x if identity else a * x + b
+            address = buffer_address
+        self.calls[k] += 1
+        clock = time.perf_counter
+        start = clock()
+        watch = self.master._watch
+        if watch is not None:  # Master._guard's stamps, inlined
+            watch.where, watch.started = (k, t, h), start
+        status = set_real(component, in_vr, n_in, address)
+        if status > 1:
+            self._fail(k, t, h, fail("fmi2SetReal", status))
+        status = do_step(component, t, h, 1)
+        if status > 1:
+            self._fail(k, t, h, fail("fmi2DoStep", status))
+        self.time[k] += clock() - start
+        status = get_real(component, out_vr, n_out, base + 8 * (row + self.m) + out_offset)
+        if status > 1:
+            self._fail(k, t, h, fail("fmi2GetReal", status))
+        if watch is not None:
+            watch.started = 0.0
+            if watch.abandoned:
+                raise _Abandoned
 
     def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
         if self.master._watch is not None:
             self.master._watch.started = 0.0
+        if isinstance(exc, SubModelError):
+            raise exc
         if isinstance(exc, EndOfSimulation):
             raise EndOfSimulation(self.names[k], exc.reason) from None
         raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc
@@ -761,6 +817,7 @@ class _ExtrapolatingKernel:
         self._rows = np.empty((0, m))
         self._h: float | None = None  # the step the derivative weights are scaled for
         self._scaled: list[tuple[np.ndarray, np.ndarray]] = []  # (unit weights, scaled ones)
+        self.done = 0  # steps completed by the last call of :meth:`steps`
         self.plan = []
         for k in master.sequence:
             model = system.models[k]
@@ -805,6 +862,15 @@ class _ExtrapolatingKernel:
                     raw = (*raw, 8 * int(src[0]) if direct_in else None)
             self.plan.append((k, model, raw, block, gather, w, deriv, master._identity[k],
                               system.a[k], system.b[k], system.output_slices[k], buffer))
+
+    def steps(self, times: Sequence[float], h: float, n: int, flat: np.ndarray,
+              base: int) -> None:
+        """:meth:`step` from each of ``times`` in turn (rows ``n`` on); :attr:`done` counts the
+        steps completed."""
+        self.done = 0
+        for i, t in enumerate(times):
+            self.step(t, h, n + i, flat, base)
+            self.done = i + 1
 
     def _scale(self, h: float) -> None:
         """Derivative weights for steps of ``h``: derivative ``k`` scales like ``h**-k``."""
@@ -916,7 +982,7 @@ class _ExtrapolatingKernel:
     def _python_step(self, k: int, t: float, h: float, n: int, flat: np.ndarray, model: Any,
                      block: Any, gather: Any, w: Any, deriv: Any, identity: bool, a: Any,
                      b: Any, out: slice) -> None:
-        """One Python sub-model's step through the master's guard (errors named, time-outs)."""
+        """One Python sub-model's step: its calls under one guard (errors named, time-outs)."""
         m, row = self.m, n * self.m
         rows, dot = self._rows, np.dot
         calls, spent, clock = self.calls, self.time, time.perf_counter
@@ -931,16 +997,31 @@ class _ExtrapolatingKernel:
         u = x if identity else a * x + b
         calls[k] += 1
         start = clock()
-        master._guard(k, t, model.set_inputs, u, h=h)
-        if deriv is not None:
-            master._guard(k, t, model.set_input_derivatives, deriv[3].copy(), h=h)
-        master._guard(k, t, model.do_step, t, h, h=h)
+        watch = master._watch
+        if watch is not None:  # one stamp for the model's calls
+            watch.where, watch.started = (k, t, h), start
+        try:
+            model.set_inputs(u)
+            if deriv is not None:
+                model.set_input_derivatives(deriv[3].copy())
+            model.do_step(t, h)
+            y = model.get_outputs()
+        except Exception as exc:
+            self._fail(k, t, h, exc)
         spent[k] += clock() - start
-        flat[row + m + out.start:row + m + out.stop] = master._outputs(k, t, h)
+        if watch is not None:
+            watch.started = 0.0
+            if watch.abandoned:
+                raise _Abandoned
+        if type(y) is not np.ndarray or y.shape != (out.stop - out.start,):
+            y = master._checked_outputs(k, t, h, y)
+        flat[row + m + out.start:row + m + out.stop] = y
 
     def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
         if self.master._watch is not None:
             self.master._watch.started = 0.0
+        if isinstance(exc, SubModelError):
+            raise exc
         if isinstance(exc, EndOfSimulation):
             raise EndOfSimulation(self.names[k], exc.reason) from None
         raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc

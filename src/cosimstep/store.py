@@ -97,6 +97,11 @@ class Store:
         # written by the run's worker thread when calls are watched (masters._Watchdog), then
         # by the caller once the worker has stopped: one thread at a time
         self._db = sqlite3.connect(self.path, check_same_thread=False)
+        # Write-ahead log, synced at checkpoints only: a commit then costs no fsync (26 ms
+        # each in rollback-journal mode), and a process that crashes or is killed still
+        # loses nothing it committed; only a power cut can lose the last commits.
+        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.execute("PRAGMA synchronous=NORMAL")
         self._db.executescript(SCHEMA)
         _add_owner_columns(self._db)
         self._flush_seconds = flush_seconds

@@ -13,14 +13,16 @@ time is integrated piecewise, so the sub-model stays exact even if a master does
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
-from scipy.integrate import solve_ivp
+from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
+from scipy.optimize import approx_fprime
 
 from cosimstep.submodel import Capabilities, Port, SubModel
 
@@ -82,10 +84,14 @@ def one_side(a: float, b: float, events: set[float] | frozenset[float]) -> tuple
 
 
 class InternalSolver(Protocol):
-    """Advances ``dx/dt = f(t, x)`` from ``t0`` to ``t1``; the sub-model's own business."""
+    """Advances ``dx/dt = f(t, x)`` from ``t0`` to ``t1``; the sub-model's own business.
+
+    ``jac(t, x)``, when the sub-model has one, is the Jacobian ``∂f/∂x`` (used by implicit
+    methods; others ignore it)."""
 
     def advance(self, f: Callable[[float, np.ndarray], np.ndarray], t0: float, t1: float,
-                x: np.ndarray) -> np.ndarray: ...
+                x: np.ndarray, jac: Callable[[float, np.ndarray], np.ndarray] | None = None,
+                ) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -99,7 +105,8 @@ class RK4:
     max_dt: float | None = None
 
     def advance(self, f: Callable[[float, np.ndarray], np.ndarray], t0: float, t1: float,
-                x: np.ndarray) -> np.ndarray:
+                x: np.ndarray, jac: Callable[[float, np.ndarray], np.ndarray] | None = None,
+                ) -> np.ndarray:
         h = t1 - t0
         n = self.substeps
         if self.max_dt is not None:
@@ -115,20 +122,84 @@ class RK4:
         return x
 
 
-@dataclass(frozen=True)
+IMPLICIT = ("Radau", "BDF")
+"""Methods that use a Jacobian (and so can be handed the one of the previous call)."""
+
+
+@dataclass
 class SolveIvp:
-    """SciPy ``solve_ivp`` inside every communication step, with its own tolerances."""
+    """One of SciPy's adaptive solvers (``RK45``, ``RK23``, ``DOP853``, ``Radau``, ``BDF``,
+    ``LSODA``) inside every communication step, with its own tolerances.
+
+    The solver object lives for one communication step, but what it learnt does not have to
+    die with it: the next step starts from the step size the last one ended with (instead of
+    SciPy's fresh estimate and growth from a small step, which costs most of the right-hand
+    side evaluations when the communication step holds few internal steps), and an implicit
+    method starts from the last Jacobian (SciPy re-evaluates it if Newton's iteration stalls,
+    so a Jacobian made stale by new inputs costs a retry, not accuracy). ``first_step`` is the
+    very first internal step (default: SciPy's estimate), ``max_step`` the largest. A sub-model
+    takes its own copy (:meth:`for_model`), so two sub-models never share what they learnt.
+    """
 
     method: str = "RK45"
     rtol: float = 1e-8
     atol: float = 1e-10
+    first_step: float | None = None
+    max_step: float = math.inf
+    _step: float | None = field(default=None, init=False, repr=False, compare=False)
+    _jacobian: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+
+    def for_model(self) -> SolveIvp:
+        """A fresh copy with nothing learnt, for one sub-model."""
+        return dataclasses.replace(self)
 
     def advance(self, f: Callable[[float, np.ndarray], np.ndarray], t0: float, t1: float,
-                x: np.ndarray) -> np.ndarray:
-        sol = solve_ivp(f, (t0, t1), x, method=self.method, rtol=self.rtol, atol=self.atol)
-        if not sol.success:
-            raise RuntimeError(f"internal solver {self.method} failed: {sol.message}")
-        return sol.y[:, -1]
+                x: np.ndarray, jac: Callable[[float, np.ndarray], np.ndarray] | None = None,
+                ) -> np.ndarray:
+        if t1 <= t0:
+            return np.asarray(x, dtype=float)
+        options: dict[str, Any] = {"rtol": self.rtol, "atol": self.atol,
+                                   "max_step": self.max_step}
+        first = self._step if self._step is not None else self.first_step
+        if first is not None:
+            options["first_step"] = min(first, t1 - t0)
+        if self.method in IMPLICIT:
+            options["jac"] = jac if jac is not None else self._reused_jacobian(f)
+        solver = METHODS[self.method](f, t0, np.asarray(x, dtype=float), t1, **options)
+        proposed = None  # the step size the solver chose before the last step was cut to t1
+        while solver.status == "running":
+            if solver.t > t0:
+                proposed = getattr(solver, "h_abs", None)
+            solver.step()
+        if solver.status == "failed":
+            raise RuntimeError(f"internal solver {self.method} failed at t = {solver.t}")
+        last = proposed if proposed is not None else getattr(solver, "h_abs", None)
+        if last is not None and last > 0:
+            self._step = float(min(last, self.max_step))
+        if self.method in IMPLICIT and jac is None:
+            self._jacobian = np.array(solver.J.toarray() if hasattr(solver.J, "toarray")
+                                      else solver.J)
+        return solver.y
+
+    def _reused_jacobian(self, f: Callable[[float, np.ndarray], np.ndarray]
+                         ) -> Callable[[float, np.ndarray], np.ndarray] | None:
+        """The last step's Jacobian the first time the solver asks, forward differences after
+        (``None`` on the first step: SciPy's own finite differences)."""
+        if self._jacobian is None:
+            return None
+        kept = [self._jacobian]
+
+        def jacobian(t: float, y: np.ndarray) -> np.ndarray:
+            if kept:
+                return kept.pop()
+            eps = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(y))
+            return approx_fprime(y, lambda z: f(t, z), eps)
+
+        return jacobian
+
+
+METHODS = {"RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau": Radau, "BDF": BDF,
+           "LSODA": LSODA}
 
 
 def make_solver(spec: Mapping[str, Any] | None) -> InternalSolver:
@@ -137,8 +208,11 @@ def make_solver(spec: Mapping[str, Any] | None) -> InternalSolver:
     method = str(spec.pop("method", "rk4")).lower()
     if method == "rk4":
         return RK4(**spec)
-    return SolveIvp(method=method.upper() if method in ("rk45", "rk23", "dop853") else method,
-                    **spec)
+    chosen = next((m for m in METHODS if m.lower() == method), None)
+    if chosen is None:
+        raise ValueError(f"unknown solver method '{method}'; choose rk4 or one of "
+                         f"{', '.join(METHODS)}")
+    return SolveIvp(method=chosen, **spec)
 
 
 class OdeSubModel(SubModel):
@@ -162,6 +236,9 @@ class OdeSubModel(SubModel):
         Times where ``rhs`` itself is discontinuous in ``t`` (a step in a forcing term, say).
         They are announced to the master like parameter changes, and a step straddling one is
         integrated piecewise. Parameter change times are announced without being listed here.
+    jac:
+        ``jac(t, x, u, p) -> ∂rhs/∂x``, for implicit internal solvers (``Radau``, ``BDF``);
+        without it they use finite differences.
     """
 
     def __init__(
@@ -173,8 +250,10 @@ class OdeSubModel(SubModel):
         parameters: ParameterSchedule | Mapping[str, float] | None = None,
         solver: InternalSolver | None = None,
         time_events: Sequence[float] = (),
+        jac: Rhs | None = None,
     ) -> None:
         self._rhs = rhs
+        self._jac = jac
         self._events = tuple(sorted(float(e) for e in time_events))
         self._states = tuple(states)
         self.inputs = tuple(inputs)
@@ -188,7 +267,10 @@ class OdeSubModel(SubModel):
         if not isinstance(parameters, ParameterSchedule):
             parameters = ParameterSchedule(parameters or {})
         self.parameters = parameters
-        self.solver: InternalSolver = solver or RK4()
+        solver = solver or RK4()
+        # an adaptive solver carries what it learnt from step to step: one copy per sub-model
+        self.solver: InternalSolver = solver.for_model() if isinstance(solver, SolveIvp) \
+            else solver
         self.capabilities = Capabilities(
             can_save_state=True, provides_derivatives=True, max_input_derivative_order=INPUT_ORDER
         )
@@ -232,9 +314,11 @@ class OdeSubModel(SubModel):
         for a, b in itertools.pairwise(cuts):
             p = self.parameters.at(a)
             lo, hi = one_side(a, b, events)
+            jac = None if self._jac is None else (
+                lambda s, y, p=p, lo=lo, hi=hi: self._jac(min(max(s, lo), hi), y, inputs_at(s), p))
             x = self.solver.advance(
                 lambda s, y, p=p, lo=lo, hi=hi: rhs(min(max(s, lo), hi), y, inputs_at(s), p),
-                a, b, x)
+                a, b, x, jac)
         self._x = np.asarray(x, dtype=float)
         self._t = t + h
         # The input polynomial is re-expanded around the new time so outputs and derivatives
