@@ -136,9 +136,11 @@ class SolveIvp:
     SciPy's fresh estimate and growth from a small step, which costs most of the right-hand
     side evaluations when the communication step holds few internal steps), and an implicit
     method starts from the last Jacobian (SciPy re-evaluates it if Newton's iteration stalls,
-    so a Jacobian made stale by new inputs costs a retry, not accuracy). ``first_step`` is the
-    very first internal step (default: SciPy's estimate), ``max_step`` the largest. A sub-model
-    takes its own copy (:meth:`for_model`), so two sub-models never share what they learnt.
+    so a Jacobian made stale by new inputs costs a retry, not accuracy). ``carry=False`` starts
+    every step afresh, as ``solve_ivp`` does (the numbers of a model-exchange FMU integrated with
+    the same settings). ``first_step`` is the very first internal step (default: SciPy's
+    estimate), ``max_step`` the largest. A sub-model takes its own copy (:meth:`for_model`), so
+    two sub-models never share what they learnt.
     """
 
     method: str = "RK45"
@@ -146,6 +148,7 @@ class SolveIvp:
     atol: float = 1e-10
     first_step: float | None = None
     max_step: float = math.inf
+    carry: bool = True
     _step: float | None = field(default=None, init=False, repr=False, compare=False)
     _jacobian: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -158,6 +161,8 @@ class SolveIvp:
                 ) -> np.ndarray:
         if t1 <= t0:
             return np.asarray(x, dtype=float)
+        if not self.carry:
+            self._step = self._jacobian = None
         options: dict[str, Any] = {"rtol": self.rtol, "atol": self.atol,
                                    "max_step": self.max_step}
         first = self._step if self._step is not None else self.first_step
@@ -193,7 +198,7 @@ class SolveIvp:
             if kept:
                 return kept.pop()
             eps = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(y))
-            return approx_fprime(y, lambda z: f(t, z), eps)
+            return np.reshape(approx_fprime(y, lambda z: f(t, z), eps), (y.size, y.size))
 
         return jacobian
 
