@@ -51,13 +51,16 @@ def _weights(s: list[float]) -> list[list[float]]:
 
     Lagrange form: derivative k at 0 of the basis polynomial of point i is
     k! * coef_k(prod_{j != i} (x - s_j)) / prod_{j != i} (s_i - s_j). Pure-Python floats are
-    much faster than a linear solve for the <= 3 points used here (this runs every step). One,
-    two and three points (extrapolation orders 0-2) are written out: the same floating-point
-    operations in the same order as :func:`_weights_loop` (bit-identical results, compared in
-    tests/test_extrapolation.py), without its list building, which cost about half of a
-    Gauss-Seidel step of two small FMUs at order 2.
+    much faster than a linear solve for the <= 4 points used here (this runs every step). One
+    to four points (extrapolation orders 0-2 and the corrector's cubic) are written out: the
+    same floating-point operations in the same order as :func:`_weights_loop` (bit-identical
+    results, compared in tests/orchestration/test_extrapolation_weights.py), without its list
+    building, which cost about half of a Gauss-Seidel step of two small FMUs at order 2.
     """
     n = len(s)
+    if n == 4:  # the predictor-corrector's cubic
+        s0, s1, s2, s3 = s
+        return _four(s0, s1, s2, s3)
     if n == 3:
         s0, s1, s2 = s
         return _three(s0, s1, s2)
@@ -79,6 +82,18 @@ def _three(s0: float, s1: float, s2: float) -> list[list[float]]:
         d = 1.0 * (si - sa) * (si - sb)
         columns.append((q0 / d, q1 / d, q2 * 2 / d))
     return [[c[k] for c in columns] for k in range(3)]
+
+
+def _four(s0: float, s1: float, s2: float, s3: float) -> list[list[float]]:
+    columns = []
+    for si, sa, sb, sc in ((s0, s1, s2, s3), (s1, s0, s2, s3), (s2, s0, s1, s3),
+                           (s3, s0, s1, s2)):
+        p0, p1 = 0.0 - sa * 1.0, 1.0 - sa * 0.0  # (x - sa)
+        q0, q1, q2 = 0.0 - sb * p0, p0 - sb * p1, p1 - sb * 0.0  # times (x - sb)
+        r0, r1, r2, r3 = 0.0 - sc * q0, q0 - sc * q1, q1 - sc * q2, q2 - sc * 0.0  # (x - sc)
+        d = 1.0 * (si - sa) * (si - sb) * (si - sc)
+        columns.append((r0 / d, r1 / d, r2 * 2 / d, r3 * 6 / d))
+    return [[c[k] for c in columns] for k in range(4)]
 
 
 def _weights_loop(s: list[float]) -> list[list[float]]:

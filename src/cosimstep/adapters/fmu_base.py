@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import shutil
 import sys
 import threading
@@ -94,6 +95,22 @@ def check_fmu(path: str | Path,
     binary for this platform.
     """
     path = Path(path)
+    info = path.stat() if path.is_file() else None
+    if info is None:
+        return _check(path, tuple(supported))
+    return _checked(str(path), info.st_mtime_ns, info.st_size, tuple(supported))
+
+
+@functools.lru_cache(maxsize=64)
+def _checked(path: str, mtime_ns: int, size: int,
+             supported: tuple[tuple[str, str], ...]) -> ModelDescription:
+    """:func:`_check` once per version of a file: the further instances of an FMU skip reading
+    and validating its model description (about 1 ms each), which nothing changes afterwards.
+    A file changed on disk has another modification time or size, so it is read again."""
+    return _check(Path(path), supported)
+
+
+def _check(path: Path, supported: Sequence[tuple[str, str]]) -> ModelDescription:
     names, xml = _read_archive(path)
     try:
         _validate(xml)
