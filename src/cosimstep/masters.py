@@ -596,7 +596,46 @@ def _iteration(system: CompiledSystem, options: MasterOptions) -> Iteration | No
                      system.output_names)
 
 
-class _HeldKernel:
+class _LeanKernel:
+    """What the two lean kernels share: counts kept locally and added to the master's at the
+    end, failures named as :meth:`Master._guard` names them, and runs of steps."""
+
+    master: Master
+    names: list[str]
+    calls: list[int]
+    time: list[float]
+    done: int
+
+    def step(self, t: float, h: float, n: int, flat: np.ndarray, base: int) -> None:
+        raise NotImplementedError
+
+    def steps(self, times: Sequence[float], h: float, n: int, flat: np.ndarray,
+              base: int) -> None:
+        """:meth:`step` from each of ``times`` in turn (rows ``n`` on); :attr:`done` counts the
+        steps completed."""
+        self.done = 0
+        for i, t in enumerate(times):
+            self.step(t, h, n + i, flat, base)
+            self.done = i + 1
+
+    def sync(self) -> None:
+        """Add the counts so far to the master's (once, when the run ends)."""
+        self.master.calls += np.array(self.calls, dtype=np.int64)
+        self.master.time_in_models += np.array(self.time)
+        self.calls = [0] * len(self.calls)
+        self.time = [0.0] * len(self.time)
+
+    def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
+        if self.master._watch is not None:
+            self.master._watch.started = 0.0
+        if isinstance(exc, SubModelError):
+            raise exc
+        if isinstance(exc, EndOfSimulation):
+            raise EndOfSimulation(self.names[k], exc.reason) from None
+        raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc
+
+
+class _HeldKernel(_LeanKernel):
     """:meth:`Master.step` at extrapolation order 0 without feedthrough, for a row-major table.
 
     The values live in one preallocated table (one row per communication point). A step reads
@@ -654,13 +693,6 @@ class _HeldKernel:
             self.plan.append((k, model, raw, in_offset, lo, hi, gather, master._identity[k],
                               system.a[k], system.b[k], m + out.start, m + out.stop,
                               (out.stop - out.start,)))
-
-    def sync(self) -> None:
-        """Add the counts so far to the master's (once, when the run ends)."""
-        self.master.calls += np.array(self.calls, dtype=np.int64)
-        self.master.time_in_models += np.array(self.time)
-        self.calls = [0] * len(self.calls)
-        self.time = [0.0] * len(self.time)
 
     def step(self, t: float, h: float, n: int, flat: np.ndarray, base: int) -> None:
         """Step every model from row ``n`` to row ``n + 1`` of the table.
@@ -754,17 +786,9 @@ class _HeldKernel:
             if watch.abandoned:
                 raise _Abandoned
 
-    def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
-        if self.master._watch is not None:
-            self.master._watch.started = 0.0
-        if isinstance(exc, SubModelError):
-            raise exc
-        if isinstance(exc, EndOfSimulation):
-            raise EndOfSimulation(self.names[k], exc.reason) from None
-        raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc
 
 
-class _ExtrapolatingKernel:
+class _ExtrapolatingKernel(_LeanKernel):
     """:meth:`Master.step` at extrapolation order ``p`` = 1 or 2 on uniform steps, without
     feedthrough, for a row-major table.
 
@@ -863,28 +887,12 @@ class _ExtrapolatingKernel:
             self.plan.append((k, model, raw, block, gather, w, deriv, master._identity[k],
                               system.a[k], system.b[k], system.output_slices[k], buffer))
 
-    def steps(self, times: Sequence[float], h: float, n: int, flat: np.ndarray,
-              base: int) -> None:
-        """:meth:`step` from each of ``times`` in turn (rows ``n`` on); :attr:`done` counts the
-        steps completed."""
-        self.done = 0
-        for i, t in enumerate(times):
-            self.step(t, h, n + i, flat, base)
-            self.done = i + 1
-
     def _scale(self, h: float) -> None:
         """Derivative weights for steps of ``h``: derivative ``k`` scales like ``h**-k``."""
         for wd_unit, wd in self._scaled:
             for i in range(wd.shape[0]):
                 wd[i] = wd_unit[i] / h ** (i + 1)
         self._h = h
-
-    def sync(self) -> None:
-        """Add the counts so far to the master's (once, when the run ends)."""
-        self.master.calls += np.array(self.calls, dtype=np.int64)
-        self.master.time_in_models += np.array(self.time)
-        self.calls = [0] * len(self.calls)
-        self.time = [0.0] * len(self.time)
 
     def step(self, t: float, h: float, n: int, flat: np.ndarray, base: int) -> None:
         """Step every model from row ``n`` to row ``n + 1`` of the table (``n >= p``, rows
@@ -1017,11 +1025,3 @@ class _ExtrapolatingKernel:
             y = master._checked_outputs(k, t, h, y)
         flat[row + m + out.start:row + m + out.stop] = y
 
-    def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
-        if self.master._watch is not None:
-            self.master._watch.started = 0.0
-        if isinstance(exc, SubModelError):
-            raise exc
-        if isinstance(exc, EndOfSimulation):
-            raise EndOfSimulation(self.names[k], exc.reason) from None
-        raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc
