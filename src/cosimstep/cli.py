@@ -19,11 +19,11 @@ import click
 from cosimstep.adapters.fmu_base import set_fmu_logging
 from cosimstep.config import SystemSpec, load_system
 from cosimstep.controllers import (
-    ADAPTIVE,
     CONTROLLERS,
     DEFAULT_ADAPTIVE,
     controller_options,
     make_controller,
+    merged_settings,
 )
 from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.iteration import COUPLINGS
@@ -351,16 +351,7 @@ def _controller_settings(spec: SystemSpec, controller: str | None, step: float |
                          tol: float | None, seed: int | None,
                          options: dict[str, Any] | None) -> dict[str, Any]:
     """The file's ``[controller]`` with the command line's choices on top."""
-    settings: dict[str, Any] = dict(spec.controller)
-    if controller is not None and controller != settings.get("name"):
-        settings = {"name": controller}  # options in the file belong to another controller
-    elif controller is None and tol is not None and settings.get("name") not in ADAPTIVE:
-        settings = {"name": DEFAULT_ADAPTIVE}  # --tol alone: the default adaptive controller
-    for key, value in (("step", step), ("tol", tol), ("seed", seed)):
-        if value is not None:
-            settings[key] = value
-    settings.update(options or {})
-    return settings
+    return merged_settings(spec.controller, controller, step, tol, seed, options)
 
 
 def _check_scheme(ctrl: Any, opts: MasterOptions, spec: SystemSpec) -> None:
@@ -438,6 +429,56 @@ def validate(system: str) -> None:
                + (", with monolithic reference" if spec.reference else ""))
     for ports in spec.system.loops():  # solved at every communication point, not refused
         click.echo(f"algebraic loop (solved at every communication point): {', '.join(ports)}")
+
+
+@main.command("sweep")
+@click.argument("system", type=click.Path(dir_okay=False))
+@click.option("--param", "params", multiple=True, required=True,
+              help="A swept name and its values: NAME=V1,V2,... (full design) or NAME=LOW:HIGH "
+              "(lhs, sobol). NAME: a parameter of the file (l2, bar2.l2), a start value "
+              "(start.theta1) or a run option (tol, step, until). Repeatable.")
+@click.option("--design", "design_kind", type=click.Choice(["full", "lhs", "sobol"]),
+              default="full", show_default=True, help="Full factorial of the listed values, "
+              "or a Latin hypercube / scrambled Sobol sample of the ranges.")
+@click.option("--samples", type=int, help="Points of a sampled design.")
+@click.option("--seed", type=int, help="Seed of a sampled design.")
+@click.option("--master", type=click.Choice(MASTERS), help="Coupling scheme of every run.")
+@click.option("--extrapolation", type=click.IntRange(0, 2), help="Input extrapolation order.")
+@click.option("--controller", type=click.Choice(sorted(CONTROLLERS)), help="Step controller.")
+@click.option("--tol", type=float, help="Tolerance of every run (unless swept).")
+@click.option("--step", type=float, help="Fixed or initial step of every run (unless swept).")
+@click.option("--until", type=float, help="End time of every run (unless swept).")
+@click.option("--coupling", type=click.Choice(COUPLINGS), help="Strong coupling of every run.")
+@click.option("--workers", type=click.IntRange(1), help="Worker processes of the local Dask "
+              "cluster (default: one per core).")
+@click.option("--scheduler", help="Address of an existing Dask scheduler "
+              "(tcp://host:8786) instead of a local cluster.")
+@click.option("--out", required=True, type=click.Path(dir_okay=False),
+              help="SQLite file of the sweep's table (runs already in it are skipped).")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+def sweep_command(system: str, params: tuple[str, ...], design_kind: str, samples: int | None,
+                  seed: int | None, out: str, workers: int | None, scheduler: str | None,
+                  quiet: bool, **options: Any) -> None:
+    """Run SYSTEM at every point of a design, one Dask task per run; summaries to --out.
+
+    The same command run again runs only what is missing; a failed run is recorded with its
+    message and the sweep goes on.
+    """
+    from cosimstep.sweep import sweep
+
+    try:
+        frame = sweep(system, list(params), design_kind=design_kind, samples=samples,
+                      seed=seed, out=out, workers=workers, scheduler=scheduler,
+                      progress=False if quiet else None, **options)
+    except ConfigurationError as exc:
+        _config_exit(exc)
+    except ValueError as exc:
+        _config_exit(ConfigurationError([Problem("--param", str(exc),
+                                                 "see `cosimstep sweep --help`")],
+                                        "the command line"))
+    counts = frame["status"].value_counts().to_dict() if len(frame) else {}
+    click.echo(f"{len(frame)} runs in {out}: "
+               + ", ".join(f"{n} {status}" for status, n in sorted(counts.items())))
 
 
 @main.command()

@@ -57,6 +57,24 @@ def make_controller(name: str | None, step: float | None = None, tol: float | No
     return CONTROLLERS[name](**kwargs)
 
 
+def merged_settings(file: dict[str, Any], controller: str | None, step: float | None,
+                    tol: float | None, seed: int | None = None,
+                    options: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A system file's ``[controller]`` with a run's choices on top: another controller drops
+    the file's options (they belong to the file's); a tolerance alone picks the default
+    adaptive controller; then ``step``, ``tol``, ``seed`` and ``options`` override."""
+    settings: dict[str, Any] = dict(file)
+    if controller is not None and controller != settings.get("name"):
+        settings = {"name": controller}
+    elif controller is None and tol is not None and settings.get("name") not in ADAPTIVE:
+        settings = {"name": DEFAULT_ADAPTIVE}
+    for key, value in (("step", step), ("tol", tol), ("seed", seed)):
+        if value is not None:
+            settings[key] = value
+    settings.update(options or {})
+    return settings
+
+
 def controller_options(name: str | None) -> list[str]:
     """The options a controller takes by name (its own and, for the error-controlled ones, the
     :class:`StepPolicy` fields), for messages that list them."""
@@ -74,4 +92,5 @@ def controller_options(name: str | None) -> list[str]:
 __all__ = ["ADAPTIVE", "CONTROLLERS", "DEFAULT_ADAPTIVE", "RKF23", "RKF45", "AdaptiveTolerance",
            "Attempt", "Controller", "Corrector", "Curvature", "Defect", "Doubling", "Embedded",
            "Fixed", "PredictorCorrector", "Random", "StepContext", "StepPolicy", "Switching",
-           "controller_options", "fft_hmax", "fixed_step_from", "make_controller"]
+           "controller_options", "fft_hmax", "fixed_step_from", "make_controller",
+           "merged_settings"]

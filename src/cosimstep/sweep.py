@@ -1,0 +1,326 @@
+"""Parameter sweeps: many runs of one system file, one Dask task per run (issue 16).
+
+A sweep is a *design* — points in the space of the swept names — and a run per point. A name is
+a system parameter of the file (``l2``, or one sub-model's ``bar2.l2``), a start value
+(``start.theta1``) or a run option (``tol``, ``step``, ``until``). Designs: the full factorial
+of listed values (``NAME=V1,V2,…``), or a Latin hypercube or a scrambled Sobol sequence of
+``samples`` points over ranges (``NAME=LOW:HIGH``), from :mod:`scipy.stats.qmc`, seeded.
+
+The runs go to Dask distributed: a :class:`~distributed.LocalCluster` of worker *processes* on
+this machine by default (a co-simulation holds the GIL, so threads would not run side by side),
+or an existing scheduler by address for a user who outgrows one machine. Every run's summary —
+its point, status, message, calls per sub-model, steps, error against the reference, the run's
+own error estimate, wall time — is written by this process, as each run finishes, to one table
+``sweep_run`` of an SQLite file, keyed by the point and the run options. Hence:
+
+- the same sweep started again skips every run already recorded (resumable);
+- a run that fails is recorded with its message and the sweep goes on: a run never raises
+  (:func:`run_point` turns every exception into a ``failed`` summary);
+- a worker process that dies mid-run loses nothing: Dask gives its task to another worker
+  (up to ``distributed.scheduler.allowed-failures`` times), and only finished runs are written.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import sqlite3
+import time
+import traceback
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+DESIGNS = ("full", "lhs", "sobol")
+RUN_OPTIONS = ("tol", "step", "until")
+"""Names a sweep may vary besides the file's parameters and start values."""
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS sweep_run(
+    key TEXT PRIMARY KEY, system TEXT, point_json TEXT, options_json TEXT, status TEXT,
+    message TEXT, calls_json TEXT, calls_total INTEGER, steps INTEGER, error REAL,
+    error_estimate REAL, wall_s REAL, finished REAL);
+"""
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One swept name: listed ``values``, or a range ``low`` … ``high`` for sampled designs."""
+
+    name: str
+    values: tuple[float, ...] | None = None
+    low: float | None = None
+    high: float | None = None
+
+
+def parse_axis(text: str) -> Axis:
+    """``NAME=V1,V2,…`` or ``NAME=LOW:HIGH``; ``ValueError`` saying what is wrong."""
+    name, sep, rest = text.partition("=")
+    name = name.strip()
+    if not sep or not name or not rest.strip():
+        raise ValueError(f"'{text}': write NAME=V1,V2,... or NAME=LOW:HIGH")
+    try:
+        if ":" in rest:
+            low, high = (float(v) for v in rest.split(":"))
+            if not (math.isfinite(low) and math.isfinite(high) and low < high):
+                raise ValueError
+            return Axis(name, low=low, high=high)
+        values = tuple(float(v) for v in rest.split(","))
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError
+        return Axis(name, values=values)
+    except ValueError:
+        raise ValueError(f"'{text}': values must be finite numbers, a range LOW:HIGH with "
+                         "LOW < HIGH") from None
+
+
+def design(axes: Sequence[Axis], kind: str = "full", samples: int | None = None,
+           seed: int | None = None) -> list[dict[str, float]]:
+    """The points of a sweep, in a fixed order (the same for the same arguments)."""
+    if kind not in DESIGNS:
+        raise ValueError(f"unknown design '{kind}'; choose one of {', '.join(DESIGNS)}")
+    if kind == "full":
+        ranged = [a.name for a in axes if a.values is None]
+        if ranged:
+            raise ValueError(f"the full design needs listed values (NAME=V1,V2,...), not a "
+                             f"range, for {', '.join(ranged)}; or use --design lhs|sobol")
+        return [dict(zip([a.name for a in axes], combo))
+                for combo in itertools.product(*(a.values for a in axes))]
+    listed = [a.name for a in axes if a.values is not None]
+    if listed:
+        raise ValueError(f"a sampled design needs ranges (NAME=LOW:HIGH), not listed values, "
+                         f"for {', '.join(listed)}")
+    if not samples or samples < 1:
+        raise ValueError(f"the {kind} design needs --samples N (N >= 1)")
+    return _sample(axes, kind, samples, seed)
+
+
+def _sample(axes: Sequence[Axis], kind: str, samples: int, seed: int | None
+            ) -> list[dict[str, float]]:
+    """``samples`` points of a Latin hypercube or a scrambled Sobol sequence over the ranges."""
+    from scipy.stats import qmc
+
+    engine = qmc.LatinHypercube(d=len(axes), seed=seed) if kind == "lhs" \
+        else qmc.Sobol(d=len(axes), scramble=True, seed=seed)
+    if kind == "sobol" and samples & (samples - 1) == 0:
+        unit = engine.random_base2(int(math.log2(samples)))
+    else:  # Sobol's balance needs a power of two; any other count is still a valid sample
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            unit = engine.random(samples)
+    scaled = qmc.scale(unit, [a.low for a in axes], [a.high for a in axes])
+    return [{a.name: float(v) for a, v in zip(axes, row)} for row in scaled]
+
+
+def run_key(system: str, point: Mapping[str, float], options: Mapping[str, Any]) -> str:
+    """What identifies a run: the system file, the point and the run options."""
+    return json.dumps({"system": system, "point": dict(sorted(point.items())),
+                       "options": dict(sorted(options.items()))}, sort_keys=True)
+
+
+def split_point(point: Mapping[str, float]) -> tuple[dict[str, Any], dict[str, float]]:
+    """``(overrides for load_system, run options)`` of a point."""
+    parameters, start, run = {}, {}, {}
+    for name, value in point.items():
+        if name in RUN_OPTIONS:
+            run[name] = value
+        elif name.startswith("start."):
+            start[name[len("start."):]] = value
+        else:
+            parameters[name] = value
+    return {"parameters": parameters, "start": start}, run
+
+
+def run_point(system: str, point: Mapping[str, float], options: Mapping[str, Any]
+              ) -> dict[str, Any]:
+    """One run of the sweep; never raises: any failure is a ``failed`` summary.
+
+    ``options``: ``master``, ``extrapolation``, ``controller``, ``tol``, ``step``, ``until``
+    and ``coupling`` as on the command line (``None``: the file's); the point's run options
+    come on top.
+    """
+    start = time.perf_counter()
+    summary: dict[str, Any] = {"point": dict(point), "status": "failed", "message": "",
+                               "calls": {}, "calls_total": 0, "steps": 0, "error": None,
+                               "error_estimate": None}
+    try:
+        result = _simulate(system, point, options)
+        summary.update(status=result.status, message=result.message, calls=result.calls,
+                       calls_total=result.calls_total, steps=result.steps_accepted,
+                       error=None if result.error is None else result.error.max_scaled,
+                       error_estimate=result.error_estimate)
+    except Exception as exc:  # a bad point must not end the sweep
+        last = traceback.extract_tb(exc.__traceback__)[-1:]
+        where = f" ({last[0].filename}:{last[0].lineno})" if last else ""
+        summary["message"] = f"{type(exc).__name__}: {exc}{where}"
+    summary["wall_s"] = time.perf_counter() - start
+    return summary
+
+
+def prepare(system: str, point: Mapping[str, float], options: Mapping[str, Any]
+            ) -> tuple[Any, Any, Any]:
+    """``(spec, controller, master)`` of one run; raises what is wrong with them
+    (:class:`~cosimstep.errors.ConfigurationError` for the file and the names)."""
+    import dataclasses
+
+    from cosimstep.config import load_system
+    from cosimstep.controllers import make_controller, merged_settings
+
+    overrides, run = split_point(point)
+    opts = {k: v for k, v in options.items() if v is not None}
+    opts.update(run)
+    spec = load_system(system, opts.get("until"), overrides)
+    master = spec.master
+    if opts.get("master") is not None:
+        master = dataclasses.replace(master, name=opts["master"])
+    if opts.get("extrapolation") is not None:
+        master = dataclasses.replace(master, extrapolation=int(opts["extrapolation"]))
+    if opts.get("coupling") is not None:
+        master = dataclasses.replace(master, coupling=opts["coupling"])
+    settings = merged_settings(spec.controller, opts.get("controller"), opts.get("step"),
+                               opts.get("tol"))
+    name = settings.pop("name", None)
+    controller = make_controller(name, settings.pop("step", None), settings.pop("tol", None),
+                                 **settings)
+    problems = master.problems()
+    if problems:
+        raise ValueError("; ".join(problems))
+    return spec, controller, master
+
+
+def _simulate(system: str, point: Mapping[str, float], options: Mapping[str, Any]) -> Any:
+    from cosimstep.simulate import simulate
+
+    spec, controller, master = prepare(system, point, options)
+    return simulate(spec.system, spec.until, controller, master, reference=spec.reference,
+                    name=spec.name, progress=False)
+
+
+class SweepTable:
+    """The ``sweep_run`` table of an SQLite file (written by one process: the sweep's)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._db = sqlite3.connect(self.path)
+        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.executescript(SCHEMA)
+
+    def finished(self) -> set[str]:
+        return {row[0] for row in self._db.execute("SELECT key FROM sweep_run")}
+
+    def add(self, key: str, system: str, options: Mapping[str, Any],
+            summary: Mapping[str, Any]) -> None:
+        self._db.execute(
+            "INSERT OR REPLACE INTO sweep_run VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (key, system, json.dumps(summary["point"], sort_keys=True),
+             json.dumps(dict(options), sort_keys=True), summary["status"], summary["message"],
+             json.dumps(summary["calls"], sort_keys=True), summary["calls_total"],
+             summary["steps"], summary["error"], summary["error_estimate"], summary["wall_s"],
+             time.time()))
+        self._db.commit()
+
+    def frame(self, keys: Sequence[str] | None = None) -> Any:
+        """The runs (those of ``keys``, in that order) as a pandas DataFrame: one column per
+        swept name, then status, message, calls per sub-model (``calls.NAME``), calls_total,
+        steps, error, error_estimate, wall_s."""
+        import pandas as pd
+
+        rows = {r[0]: r for r in self._db.execute(
+            "SELECT key, point_json, status, message, calls_json, calls_total, steps, error, "
+            "error_estimate, wall_s FROM sweep_run")}
+        order = list(keys) if keys is not None else sorted(rows)
+        records = []
+        for key in order:
+            if key not in rows:
+                continue
+            _, point, status, message, calls, total, steps, error, estimate, wall = rows[key]
+            record = dict(json.loads(point))
+            record.update(status=status, message=message)
+            record.update({f"calls.{m}": c for m, c in json.loads(calls).items()})
+            record.update(calls_total=total, steps=steps, error=error,
+                          error_estimate=estimate, wall_s=wall)
+            records.append(record)
+        return pd.DataFrame.from_records(records)
+
+    def close(self) -> None:
+        self._db.close()
+
+
+def sweep(system: str | Path, params: Sequence[str | Axis], *, design_kind: str = "full",
+          samples: int | None = None, seed: int | None = None, out: str | Path = "sweep.db",
+          workers: int | None = None, scheduler: str | None = None,
+          progress: bool | None = None, **options: Any) -> Any:
+    """Run ``system`` at every point of the design on Dask; return the runs as a DataFrame.
+
+    ``params``: axes (``"l2=0.5,1,2"``, ``"tol=1e-6:1e-3"`` or :class:`Axis`); ``options``:
+    ``master``, ``extrapolation``, ``controller``, ``tol``, ``step``, ``until``, ``coupling``.
+    Runs already in ``out`` are not run again. ``workers``: worker processes of the local
+    cluster (default: one per core); ``scheduler``: the address of an existing Dask scheduler
+    instead. Each run's summary is written to ``out`` as it finishes.
+    """
+    system = str(Path(system).resolve())
+    axes = [a if isinstance(a, Axis) else parse_axis(a) for a in params]
+    points = design(axes, design_kind, samples, seed)
+    options = {k: v for k, v in options.items() if v is not None}
+    keys = [run_key(system, p, options) for p in points]
+    prepare(system, points[0], options)  # a misspelt name fails here, not in every run
+    table = SweepTable(out)
+    try:
+        done = table.finished()
+        todo = [(k, p) for k, p in zip(keys, points) if k not in done]
+        if todo:
+            _execute(todo, system, options, table, workers, scheduler, progress)
+        return table.frame(keys)
+    finally:
+        table.close()
+
+
+def _execute(todo: list[tuple[str, dict[str, float]]], system: str, options: dict[str, Any],
+             table: SweepTable, workers: int | None, scheduler: str | None,
+             progress: bool | None) -> None:
+    from distributed import Client, LocalCluster, as_completed
+    from tqdm import tqdm
+
+    cluster = None
+    if scheduler is None:
+        import os
+
+        n = workers or os.cpu_count() or 1
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+    client = Client(scheduler or cluster)
+    try:
+        futures = {client.submit(run_point, system, p, options, pure=False): k
+                   for k, p in todo}
+        quiet = progress is False or (progress is None and not _tty())
+        with tqdm(total=len(futures), unit="run", desc="sweep", disable=quiet) as bar:
+            for future in as_completed(futures):
+                key = futures[future]
+                try:
+                    summary = future.result()
+                except Exception as exc:  # the task itself was lost (workers kept dying)
+                    point = dict(json.loads(key)["point"])
+                    summary = {"point": point, "status": "failed",
+                               "message": f"{type(exc).__name__}: {exc}", "calls": {},
+                               "calls_total": 0, "steps": 0, "error": None,
+                               "error_estimate": None, "wall_s": float("nan")}
+                table.add(key, system, options, summary)
+                bar.update(1)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _tty() -> bool:
+    import sys
+
+    return sys.stderr.isatty()
+
+
+__all__ = ["DESIGNS", "Axis", "SweepTable", "design", "parse_axis", "run_point", "sweep"]
