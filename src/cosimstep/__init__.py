@@ -15,6 +15,7 @@ from cosimstep.simulate import SimulationResult, simulate
 from cosimstep.ssp import load_ssp
 from cosimstep.store import read_run
 from cosimstep.submodel import Capabilities, Port, SubModel
+from cosimstep.sweep import sweep
 from cosimstep.system import System
 
 __all__ = [
@@ -22,5 +23,5 @@ __all__ = [
     "MasterOptions",
     "OdeSubModel", "ParameterSchedule", "Port", "Problem", "Random", "Reference",
     "SimulationResult", "SolveIvp", "StepSizeError", "SubModel", "SubModelError", "System",
-    "SystemSpec", "load_ssp", "load_system", "make_controller", "read_run", "simulate",
+    "SystemSpec", "load_ssp", "load_system", "make_controller", "read_run", "simulate", "sweep",
 ]

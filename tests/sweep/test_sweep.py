@@ -8,7 +8,8 @@ import sqlite3
 import numpy as np
 import pytest
 
-from cosimstep.sweep import Axis, design, parse_axis, sweep
+from cosimstep import sweep
+from cosimstep.sweep import Axis, design, parse_axis
 
 
 def test_designs() -> None:
