@@ -74,3 +74,43 @@ def test_the_command_line_reports_bad_names_before_running(tmp_path, examples) -
     assert res.exit_code == 2 and "parameters.l9: no model uses this parameter" in res.output
     res = CliRunner().invoke(main, ["sweep", system, "--param", "l2=1:2", "--out", out])
     assert res.exit_code == 2 and "needs listed values" in res.output
+
+
+def test_a_worker_killed_mid_sweep_loses_no_run(tmp_path, examples) -> None:
+    """A worker process is killed (SIGKILL) while the sweep is under way; the scheduler hands
+    its task to another worker and every run ends up recorded, ok."""
+    import threading
+    import time
+
+    import psutil
+
+    out = tmp_path / "sweep.db"
+    killed: list[int] = []
+
+    def kill_a_worker() -> None:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not killed:
+            time.sleep(0.2)
+            if not out.exists():
+                continue
+            with sqlite3.connect(out) as db:
+                try:
+                    done = db.execute("SELECT COUNT(*) FROM sweep_run").fetchone()[0]
+                except sqlite3.OperationalError:
+                    continue
+            workers = [p for p in psutil.Process().children(recursive=True)
+                       if "spawn_main" in " ".join(p.cmdline())]  # the worker processes
+            if done >= 1 and workers:
+                victim = max(workers, key=lambda p: p.create_time())
+                victim.kill()
+                killed.append(victim.pid)
+
+    thread = threading.Thread(target=kill_a_worker, daemon=True)
+    thread.start()
+    frame = sweep(examples / "double_pendulum_slow.toml",
+                  ["l2=0.5,0.75,1,1.25,1.5,1.75,2,2.25"], out=out, workers=2, until=3.0,
+                  step=0.0005, progress=False)
+    thread.join(timeout=5)
+    assert killed, "no worker was killed: the test did not test anything"
+    assert len(frame) == 8 and set(frame["status"]) == {"ok"}, frame[["l2", "status", "message"]]
+    assert all(frame["calls_total"] == 2 * 6000)
