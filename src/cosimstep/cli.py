@@ -481,6 +481,42 @@ def sweep_command(system: str, params: tuple[str, ...], design_kind: str, sample
                + ", ".join(f"{n} {status}" for status, n in sorted(counts.items())))
 
 
+@main.command("plot-sweep")
+@click.argument("db", type=click.Path(dir_okay=False))
+@click.option("--x", "x", required=True, help="A swept name for the horizontal axis.")
+@click.option("--y", "y", help="A second swept name: contours of Z over the X-Y plane.")
+@click.option("--z", "z", default="calls_total", show_default=True,
+              help="What is drawn: calls_total, error, error_estimate, steps, wall_s or "
+              "calls.MODEL.")
+@click.option("--linear", is_flag=True, help="Linear axes and colours (default: logarithmic "
+              "where the values are positive).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Figure file (.png, .pdf, .svg).")
+def plot_sweep_command(db: str, x: str, y: str | None, z: str, linear: bool,
+                       output: str) -> None:
+    """Plot a sweep's runs: Z against X, or contours of Z over X and Y (thesis figs. 68-70)."""
+    from cosimstep.plotting import plot_sweep
+    from cosimstep.sweep import SweepTable
+
+    if not Path(db).is_file():
+        _config_exit(ConfigurationError([Problem("DB", f"no file {db}",
+                                                 "give the --out of a cosimstep sweep")],
+                                        "the command line"))
+    table = SweepTable(db)
+    try:
+        frame = table.frame()
+    finally:
+        table.close()
+    missing = [n for n in (x, y, z) if n is not None and n not in frame.columns]
+    if missing or frame.empty:
+        _config_exit(ConfigurationError(
+            [Problem(f"--{'xyz'[(x, y, z).index(n)]}", f"'{n}' is not a column of {db}",
+                     f"columns: {', '.join(map(str, frame.columns))}") for n in missing]
+            or [Problem("DB", f"{db} holds no sweep runs", "run cosimstep sweep first")],
+            "the command line"))
+    click.echo(f"wrote {plot_sweep(frame, output, x, y, z, log=not linear)}")
+
+
 @main.command()
 @click.argument("fmu", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")

@@ -109,3 +109,90 @@ def _title(run: StoredRun) -> str:
     if err:
         title += f", max error {err['max_abs']:.2e} vs monolithic"
     return title
+
+
+def plot_sweep(frame: Any, path: str | Path, x: str, y: str | None, z: str,
+               log: bool = True) -> Path:
+    """A sweep's runs as a figure (thesis figs. 68–70): with ``y``, filled contours of ``z``
+    over the plane of the swept ``x`` and ``y`` (any design: triangulated), the runs marked;
+    without, ``z`` against ``x``, one line per value of the other swept names. Failed runs
+    are left out (marked with crosses). ``log``: logarithmic axes and colour scale where the
+    values are positive (steps, tolerances, calls and errors span decades)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = frame[(frame["status"] == "ok") & frame[z].notna()]
+    failed = frame[frame["status"] != "ok"]
+    fig, ax = plt.subplots(figsize=(7, 5), constrained_layout=True)
+    if y is not None:
+        _contours(fig, ax, ok, failed, x, y, z, log)
+    else:
+        _lines(ax, frame, ok, x, z, log)
+    ax.set_title(f"{z} over {x}" + (f" and {y}" if y else "") + f" ({len(ok)} runs"
+                 + (f", {len(failed)} failed)" if len(failed) else ")"), fontsize=10)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _logged(values: np.ndarray, log: bool) -> bool:
+    return log and values.size > 0 and bool(np.all(values > 0))
+
+
+def _contours(fig: Any, ax: Any, ok: Any, failed: Any, x: str, y: str, z: str,
+              log: bool) -> None:
+    from matplotlib import colors, tri
+
+    xs, ys, zs = (ok[n].to_numpy(float) for n in (x, y, z))
+    lx, ly = _logged(xs, log), _logged(ys, log)
+
+    def at(values: np.ndarray, logged: bool) -> np.ndarray:
+        return np.log10(values) if logged else values
+
+    norm = colors.LogNorm() if _logged(zs, log) else None
+    shade = ax.tricontourf(tri.Triangulation(at(xs, lx), at(ys, ly)), zs,
+                           levels=_levels(zs, norm), norm=norm, cmap="viridis")
+    fig.colorbar(shade, ax=ax, label=z, format="%.2g")
+    ax.plot(at(xs, lx), at(ys, ly), "k.", ms=3)
+    bad_x, bad_y = failed[x].to_numpy(float), failed[y].to_numpy(float)
+    ax.plot(at(bad_x, lx and _logged(bad_x, log)), at(bad_y, ly and _logged(bad_y, log)), "rx")
+    ax.set_xlabel(f"log10 {x}" if lx else x)
+    ax.set_ylabel(f"log10 {y}" if ly else y)
+
+
+def _lines(ax: Any, frame: Any, ok: Any, x: str, z: str, log: bool) -> None:
+    others = [c for c in _swept(frame) if c not in (x, z)]
+    groups = ok.groupby(others) if others else [((), ok)]
+    for key, rows in groups:
+        rows = rows.sort_values(x)
+        label = ", ".join(f"{n} = {v:g}" for n, v in zip(others, np.atleast_1d(key)))
+        ax.plot(rows[x], rows[z], "o-", label=label or None)
+    if _logged(ok[x].to_numpy(float), log):
+        ax.set_xscale("log")
+    if _logged(ok[z].to_numpy(float), log):
+        ax.set_yscale("log")
+    ax.set_xlabel(x)
+    ax.set_ylabel(z)
+    if others:
+        ax.legend(fontsize=8)
+
+
+def _levels(values: np.ndarray, norm: Any) -> Any:
+    if norm is None:
+        return 12
+    low, high = np.log10(values.min()), np.log10(values.max())
+    if high - low < 1e-9:
+        high = low + 1.0
+    return np.logspace(low, high, 13)
+
+
+SUMMARY = ("status", "message", "calls_total", "steps", "error", "error_estimate", "wall_s")
+
+
+def _swept(frame: Any) -> list[str]:
+    """The swept names of a sweep's DataFrame: the columns before its summary's."""
+    return [c for c in frame.columns if c not in SUMMARY and not c.startswith("calls.")]

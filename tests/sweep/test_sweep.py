@@ -114,3 +114,31 @@ def test_a_worker_killed_mid_sweep_loses_no_run(tmp_path, examples) -> None:
     assert killed, "no worker was killed: the test did not test anything"
     assert len(frame) == 8 and set(frame["status"]) == {"ok"}, frame[["l2", "status", "message"]]
     assert all(frame["calls_total"] == 2 * 6000)
+
+
+def test_plot_sweep_draws_contours_and_lines(tmp_path) -> None:
+    """Contours over two swept names (thesis figs. 68-70) and lines over one, from a sweep
+    table; a name that is not a column is a configuration error (exit 2)."""
+    from click.testing import CliRunner
+
+    from cosimstep.cli import main
+    from cosimstep.sweep import SweepTable, run_key
+
+    db = tmp_path / "s.db"
+    table = SweepTable(db)
+    for l1 in (0.1, 1.0, 10.0):
+        for l2 in (0.1, 1.0, 10.0):
+            point = {"l1": l1, "l2": l2}
+            table.add(run_key("x.toml", point, {}), "x.toml", {},
+                      {"point": point, "status": "ok" if l1 * l2 < 50 else "failed",
+                       "message": "", "calls": {"a": 10}, "calls_total": int(100 * l1 / l2),
+                       "steps": 10, "error": 1e-3 * l1 * l2, "error_estimate": None,
+                       "wall_s": 0.1})
+    table.close()
+    for args in (["--x", "l1", "--y", "l2", "--z", "error"], ["--x", "l1", "--z", "calls_total"]):
+        figure = tmp_path / f"{len(args)}.png"
+        res = CliRunner().invoke(main, ["plot-sweep", str(db), *args, "-o", str(figure)])
+        assert res.exit_code == 0, res.output
+        assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and figure.stat().st_size > 10_000
+    res = CliRunner().invoke(main, ["plot-sweep", str(db), "--x", "l9", "-o", str(figure)])
+    assert res.exit_code == 2 and "'l9' is not a column" in res.output
