@@ -455,10 +455,13 @@ def validate(system: str) -> None:
               "(tcp://host:8786) instead of a local cluster.")
 @click.option("--out", required=True, type=click.Path(dir_okay=False),
               help="SQLite file of the sweep's table (runs already in it are skipped).")
+@click.option("--keep", type=click.Choice(["summary", "traces"]), default="summary",
+              show_default=True, help="traces: also each run's whole trajectory, one store "
+              "per run in OUT_traces/ (`cosimstep plot`, `results`, read_run read them).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def sweep_command(system: str, params: tuple[str, ...], design_kind: str, samples: int | None,
                   seed: int | None, out: str, workers: int | None, scheduler: str | None,
-                  quiet: bool, **options: Any) -> None:
+                  keep: str, quiet: bool, **options: Any) -> None:
     """Run SYSTEM at every point of a design, one Dask task per run; summaries to --out.
 
     The same command run again runs only what is missing; a failed run is recorded with its
@@ -469,7 +472,7 @@ def sweep_command(system: str, params: tuple[str, ...], design_kind: str, sample
     try:
         frame = sweep(system, list(params), design_kind=design_kind, samples=samples,
                       seed=seed, out=out, workers=workers, scheduler=scheduler,
-                      progress=False if quiet else None, **options)
+                      progress=False if quiet else None, keep=keep, **options)
     except ConfigurationError as exc:
         _config_exit(exc)
     except ValueError as exc:

@@ -190,7 +190,8 @@ def _levels(values: np.ndarray, norm: Any) -> Any:
     return np.logspace(low, high, 13)
 
 
-SUMMARY = ("status", "message", "calls_total", "steps", "error", "error_estimate", "wall_s")
+SUMMARY = ("status", "message", "calls_total", "steps", "error", "error_estimate", "wall_s",
+           "store")
 
 
 def _swept(frame: Any) -> list[str]:

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 DESIGNS = ("full", "lhs", "sobol")
+KEEP = ("summary", "traces")
 RUN_OPTIONS = ("tol", "step", "until")
 """Names a sweep may vary besides the file's parameters and start values."""
 
@@ -41,7 +42,7 @@ SCHEMA = """
 CREATE TABLE IF NOT EXISTS sweep_run(
     key TEXT PRIMARY KEY, system TEXT, point_json TEXT, options_json TEXT, status TEXT,
     message TEXT, calls_json TEXT, calls_total INTEGER, steps INTEGER, error REAL,
-    error_estimate REAL, wall_s REAL, finished REAL);
+    error_estimate REAL, wall_s REAL, finished REAL, store TEXT);
 """
 
 
@@ -135,20 +136,20 @@ def split_point(point: Mapping[str, float]) -> tuple[dict[str, Any], dict[str, f
     return {"parameters": parameters, "start": start}, run
 
 
-def run_point(system: str, point: Mapping[str, float], options: Mapping[str, Any]
-              ) -> dict[str, Any]:
+def run_point(system: str, point: Mapping[str, float], options: Mapping[str, Any],
+              store: str | None = None) -> dict[str, Any]:
     """One run of the sweep; never raises: any failure is a ``failed`` summary.
 
     ``options``: ``master``, ``extrapolation``, ``controller``, ``tol``, ``step``, ``until``
     and ``coupling`` as on the command line (``None``: the file's); the point's run options
-    come on top.
+    come on top. ``store``: an SQLite file for the run's whole trajectory (``None``: none).
     """
     start = time.perf_counter()
     summary: dict[str, Any] = {"point": dict(point), "status": "failed", "message": "",
                                "calls": {}, "calls_total": 0, "steps": 0, "error": None,
-                               "error_estimate": None}
+                               "error_estimate": None, "store": store}
     try:
-        result = _simulate(system, point, options)
+        result = _simulate(system, point, options, store)
         summary.update(status=result.status, message=result.message, calls=result.calls,
                        calls_total=result.calls_total, steps=result.steps_accepted,
                        error=None if result.error is None else result.error.max_scaled,
@@ -192,12 +193,14 @@ def prepare(system: str, point: Mapping[str, float], options: Mapping[str, Any]
     return spec, controller, master
 
 
-def _simulate(system: str, point: Mapping[str, float], options: Mapping[str, Any]) -> Any:
+def _simulate(system: str, point: Mapping[str, float], options: Mapping[str, Any],
+              store: str | None) -> Any:
     from cosimstep.simulate import simulate
 
     spec, controller, master = prepare(system, point, options)
     return simulate(spec.system, spec.until, controller, master, reference=spec.reference,
-                    name=spec.name, progress=False)
+                    name=spec.name, progress=False, store=store,
+                    config={"source": system, "point": dict(point), "options": dict(options)})
 
 
 class SweepTable:
@@ -209,19 +212,23 @@ class SweepTable:
         self._db = sqlite3.connect(self.path)
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.executescript(SCHEMA)
+        have = {row[1] for row in self._db.execute("PRAGMA table_info(sweep_run)")}
+        if "store" not in have:  # a table written before runs could keep their trajectories
+            self._db.execute("ALTER TABLE sweep_run ADD COLUMN store TEXT")
 
-    def finished(self) -> set[str]:
-        return {row[0] for row in self._db.execute("SELECT key FROM sweep_run")}
+    def finished(self) -> dict[str, str | None]:
+        """Each recorded run's key and its trajectory store (``None``: summary only)."""
+        return dict(self._db.execute("SELECT key, store FROM sweep_run").fetchall())
 
     def add(self, key: str, system: str, options: Mapping[str, Any],
             summary: Mapping[str, Any]) -> None:
         self._db.execute(
-            "INSERT OR REPLACE INTO sweep_run VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            "INSERT OR REPLACE INTO sweep_run VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             (key, system, json.dumps(summary["point"], sort_keys=True),
              json.dumps(dict(options), sort_keys=True), summary["status"], summary["message"],
              json.dumps(summary["calls"], sort_keys=True), summary["calls_total"],
              summary["steps"], summary["error"], summary["error_estimate"], summary["wall_s"],
-             time.time()))
+             time.time(), summary.get("store")))
         self._db.commit()
 
     def frame(self, keys: Sequence[str] | None = None) -> Any:
@@ -232,18 +239,19 @@ class SweepTable:
 
         rows = {r[0]: r for r in self._db.execute(
             "SELECT key, point_json, status, message, calls_json, calls_total, steps, error, "
-            "error_estimate, wall_s FROM sweep_run")}
+            "error_estimate, wall_s, store FROM sweep_run")}
         order = list(keys) if keys is not None else sorted(rows)
         records = []
         for key in order:
             if key not in rows:
                 continue
-            _, point, status, message, calls, total, steps, error, estimate, wall = rows[key]
+            _, point, status, message, calls, total, steps, error, estimate, wall, store = \
+                rows[key]
             record = dict(json.loads(point))
             record.update(status=status, message=message)
             record.update({f"calls.{m}": c for m, c in json.loads(calls).items()})
             record.update(calls_total=total, steps=steps, error=error,
-                          error_estimate=estimate, wall_s=wall)
+                          error_estimate=estimate, wall_s=wall, store=store)
             records.append(record)
         return pd.DataFrame.from_records(records)
 
@@ -254,15 +262,19 @@ class SweepTable:
 def sweep(system: str | Path, params: Sequence[str | Axis], *, design_kind: str = "full",
           samples: int | None = None, seed: int | None = None, out: str | Path = "sweep.db",
           workers: int | None = None, scheduler: str | None = None,
-          progress: bool | None = None, **options: Any) -> Any:
+          progress: bool | None = None, keep: str = "summary", **options: Any) -> Any:
     """Run ``system`` at every point of the design on Dask; return the runs as a DataFrame.
 
     ``params``: axes (``"l2=0.5,1,2"``, ``"tol=1e-6:1e-3"`` or :class:`Axis`); ``options``:
     ``master``, ``extrapolation``, ``controller``, ``tol``, ``step``, ``until``, ``coupling``.
     Runs already in ``out`` are not run again. ``workers``: worker processes of the local
     cluster (default: one per core); ``scheduler``: the address of an existing Dask scheduler
-    instead. Each run's summary is written to ``out`` as it finishes.
+    instead. Each run's summary is written to ``out`` as it finishes. ``keep="traces"`` also
+    stores each run's whole trajectory, in ``<out>_traces/run-<id>.db`` (column ``store``;
+    read with :func:`cosimstep.read_run`); a recorded run without one is then run again.
     """
+    if keep not in KEEP:
+        raise ValueError(f"unknown keep '{keep}'; choose one of {', '.join(KEEP)}")
     system = str(Path(system).resolve())
     axes = [a if isinstance(a, Axis) else parse_axis(a) for a in params]
     points = design(axes, design_kind, samples, seed)
@@ -272,7 +284,12 @@ def sweep(system: str | Path, params: Sequence[str | Axis], *, design_kind: str 
     table = SweepTable(out)
     try:
         done = table.finished()
-        todo = [(k, p) for k, p in zip(keys, points) if k not in done]
+        traces = Path(out).with_name(Path(out).stem + "_traces") if keep == "traces" else None
+        todo = [(k, p, None if traces is None else str(traces / f"run-{_digest(k)}.db"))
+                for k, p in zip(keys, points)
+                if k not in done or (traces is not None and not _kept(done[k]))]
+        if traces is not None:
+            traces.mkdir(parents=True, exist_ok=True)
         if todo:
             _execute(todo, system, options, table, workers, scheduler, progress)
         return table.frame(keys)
@@ -280,7 +297,18 @@ def sweep(system: str | Path, params: Sequence[str | Axis], *, design_kind: str 
         table.close()
 
 
-def _execute(todo: list[tuple[str, dict[str, float]]], system: str, options: dict[str, Any],
+def _digest(key: str) -> str:
+    import hashlib
+
+    return hashlib.sha1(key.encode()).hexdigest()[:16]
+
+
+def _kept(store: str | None) -> bool:
+    return store is not None and Path(store).is_file()
+
+
+def _execute(todo: list[tuple[str, dict[str, float], str | None]], system: str,
+             options: dict[str, Any],
              table: SweepTable, workers: int | None, scheduler: str | None,
              progress: bool | None) -> None:
     from distributed import Client, LocalCluster, as_completed
@@ -295,8 +323,11 @@ def _execute(todo: list[tuple[str, dict[str, float]]], system: str, options: dic
                                dashboard_address=None)
     client = Client(scheduler or cluster)
     try:
-        futures = {client.submit(run_point, system, p, options, pure=False): k
-                   for k, p in todo}
+        for _, _, store in todo:  # a run stored before (failed, or killed) starts afresh
+            if store is not None:
+                Path(store).unlink(missing_ok=True)
+        futures = {client.submit(run_point, system, p, options, store, pure=False): k
+                   for k, p, store in todo}
         quiet = progress is False or (progress is None and not _tty())
         with tqdm(total=len(futures), unit="run", desc="sweep", disable=quiet) as bar:
             for future in as_completed(futures):
@@ -308,7 +339,8 @@ def _execute(todo: list[tuple[str, dict[str, float]]], system: str, options: dic
                     summary = {"point": point, "status": "failed",
                                "message": f"{type(exc).__name__}: {exc}", "calls": {},
                                "calls_total": 0, "steps": 0, "error": None,
-                               "error_estimate": None, "wall_s": float("nan")}
+                               "error_estimate": None, "wall_s": float("nan"),
+                               "store": None}
                 table.add(key, system, options, summary)
                 bar.update(1)
     finally:

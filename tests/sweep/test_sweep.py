@@ -142,3 +142,25 @@ def test_plot_sweep_draws_contours_and_lines(tmp_path) -> None:
         assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and figure.stat().st_size > 10_000
     res = CliRunner().invoke(main, ["plot-sweep", str(db), "--x", "l9", "-o", str(figure)])
     assert res.exit_code == 2 and "'l9' is not a column" in res.output
+
+
+def test_traces_are_kept_one_store_per_run(tmp_path, examples) -> None:
+    """--keep traces: every run's trajectory in its own store, the sweep table naming it; a
+    sweep recorded without traces runs again when they are asked for."""
+    import cosimstep
+
+    out = tmp_path / "sweep.db"
+    args = (examples / "double_pendulum_slow.toml", ["l2=0.5,1"])
+    sweep(*args, out=out, workers=1, until=1.0, step=0.01, progress=False)
+    frame = sweep(*args, out=out, workers=1, until=1.0, step=0.01, progress=False,
+                  keep="traces")
+    assert len(frame) == 2 and set(frame["status"]) == {"ok"}
+    for _, row in frame.iterrows():
+        stored = cosimstep.read_run(row["store"])
+        assert len(stored.times) == 101 and stored.times[-1] == pytest.approx(1.0)
+        assert "bar2.theta" in stored.names
+    theta2 = {}
+    for _, row in frame.iterrows():
+        stored = cosimstep.read_run(row["store"])
+        theta2[row["l2"]] = stored.values[:, stored.names.index("bar2.theta")]
+    assert not np.allclose(theta2[0.5], theta2[1.0])  # two different pendulums
