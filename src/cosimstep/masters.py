@@ -625,6 +625,42 @@ class _LeanKernel:
         self.calls = [0] * len(self.calls)
         self.time = [0.0] * len(self.time)
 
+    def _c_step(self, k: int, t: float, h: float, raw: tuple, in_address: int,
+                out_address: int, derivatives: tuple | None = None) -> None:
+        """One FMU's step through its raw C calls (``raw[:9]``: the instance, setReal and its
+        value references, doStep, getReal and its, the error maker): inputs from
+        ``in_address``, input derivatives first if given (``(setRealInputDerivatives, value
+        references, count, orders, address, model)``), outputs to ``out_address``. Counted,
+        timed and watched as :meth:`Master._guard` would."""
+        component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail = raw[:9]
+        self.calls[k] += 1
+        clock = time.perf_counter
+        start = clock()
+        watch = self.master._watch
+        if watch is not None:  # Master._guard's stamps, inlined
+            watch.where, watch.started = (k, t, h), start
+        status = set_real(component, in_vr, n_in, in_address)
+        if status > 1:
+            self._fail(k, t, h, fail("fmi2SetReal", status))
+        if derivatives is not None:
+            set_derivatives, deriv_vr, n_deriv, deriv_order, d_address, model = derivatives
+            status = set_derivatives(component, deriv_vr, n_deriv, deriv_order, d_address)
+            if status > 1:
+                self._fail(k, t, h, fail("fmi2SetRealInputDerivatives", status))
+            # as after set_input_derivatives (conservatively: "may be nonzero")
+            model._derivatives_set, model._derivatives_stale = True, False
+        status = do_step(component, t, h, 1)
+        if status > 1:
+            self._fail(k, t, h, fail("fmi2DoStep", status))
+        self.time[k] += clock() - start
+        status = get_real(component, out_vr, n_out, out_address)
+        if status > 1:
+            self._fail(k, t, h, fail("fmi2GetReal", status))
+        if watch is not None:
+            watch.started = 0.0
+            if watch.abandoned:
+                raise _Abandoned
+
     def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
         if self.master._watch is not None:
             self.master._watch.started = 0.0
@@ -757,35 +793,14 @@ class _HeldKernel(_LeanKernel):
                   a: np.ndarray, b: np.ndarray) -> None:
         """One FMU's step through its raw C calls, inputs from row ``row`` (a flat index),
         outputs straight into the next row."""
-        (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
-         out_offset, buffer, buffer_address) = raw
+        out_offset, buffer, buffer_address = raw[9:]
         if in_offset is not None:
             address = base + 8 * row + in_offset
         else:
             x = flat[gather + row]
             buffer[:] = x if identity else a * x + b
             address = buffer_address
-        self.calls[k] += 1
-        clock = time.perf_counter
-        start = clock()
-        watch = self.master._watch
-        if watch is not None:  # Master._guard's stamps, inlined
-            watch.where, watch.started = (k, t, h), start
-        status = set_real(component, in_vr, n_in, address)
-        if status > 1:
-            self._fail(k, t, h, fail("fmi2SetReal", status))
-        status = do_step(component, t, h, 1)
-        if status > 1:
-            self._fail(k, t, h, fail("fmi2DoStep", status))
-        self.time[k] += clock() - start
-        status = get_real(component, out_vr, n_out, base + 8 * (row + self.m) + out_offset)
-        if status > 1:
-            self._fail(k, t, h, fail("fmi2GetReal", status))
-        if watch is not None:
-            watch.started = 0.0
-            if watch.abandoned:
-                raise _Abandoned
-
+        self._c_step(k, t, h, raw, address, base + 8 * (row + self.m) + out_offset)
 
 
 class _ExtrapolatingKernel(_LeanKernel):
@@ -936,10 +951,9 @@ class _ExtrapolatingKernel(_LeanKernel):
         rows, outputs straight into row ``n + 1``."""
         m, row = self.m, n * self.m
         rows, dot = self._rows, np.dot
-        calls, spent, clock = self.calls, self.time, time.perf_counter
+        derivatives = None
         if deriv is None:
-            (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
-             out_offset, buffer_address) = raw
+            out_offset, buffer_address = raw[9:]
             if block is not None:
                 r0, r1, c0, c1, wb = block
                 dot(wb, rows[n + r0:n + r1, c0:c1], out=buffer)
@@ -949,9 +963,8 @@ class _ExtrapolatingKernel(_LeanKernel):
                 x = (w * flat[gather + row]).sum(axis=0)
                 buffer[:] = x if identity else a * x + b
         else:
-            (component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail,
-             set_derivatives, deriv_vr, n_deriv, deriv_order, d_model, d_address,
-             out_offset, buffer_address, in_offset) = raw
+            (set_derivatives, deriv_vr, n_deriv, deriv_order, d_model, d_address,
+             out_offset, buffer_address, in_offset) = raw[9:]
             q, _, src, d = deriv
             if in_offset is None:
                 x = flat[src + row]
@@ -960,32 +973,9 @@ class _ExtrapolatingKernel(_LeanKernel):
                 buffer_address = base + 8 * row + in_offset  # row n, unchanged
             d_model[:q] = d
             d_model[q:] = 0.0
-        calls[k] += 1
-        start = clock()
-        watch = self.master._watch
-        if watch is not None:  # Master._guard's stamps, inlined
-            watch.where, watch.started = (k, t, h), start
-        status = set_real(component, in_vr, n_in, buffer_address)
-        if status > 1:
-            self._fail(k, t, h, fail("fmi2SetReal", status))
-        if deriv is not None:
-            status = set_derivatives(component, deriv_vr, n_deriv, deriv_order,
-                                     d_address)
-            if status > 1:
-                self._fail(k, t, h, fail("fmi2SetRealInputDerivatives", status))
-            # as after set_input_derivatives (conservatively: "may be nonzero")
-            model._derivatives_set, model._derivatives_stale = True, False
-        status = do_step(component, t, h, 1)
-        if status > 1:
-            self._fail(k, t, h, fail("fmi2DoStep", status))
-        spent[k] += clock() - start
-        status = get_real(component, out_vr, n_out, base + 8 * (row + m) + out_offset)
-        if status > 1:
-            self._fail(k, t, h, fail("fmi2GetReal", status))
-        if watch is not None:
-            watch.started = 0.0
-            if watch.abandoned:
-                raise _Abandoned
+            derivatives = (set_derivatives, deriv_vr, n_deriv, deriv_order, d_address, model)
+        self._c_step(k, t, h, raw, buffer_address, base + 8 * (row + m) + out_offset,
+                     derivatives)
 
     def _python_step(self, k: int, t: float, h: float, n: int, flat: np.ndarray, model: Any,
                      block: Any, gather: Any, w: Any, deriv: Any, identity: bool, a: Any,
