@@ -159,7 +159,11 @@ def test_ctrl_c_during_an_fmu_run_keeps_every_point_once(examples: Path, tmp_pat
     proc = subprocess.Popen([sys.executable, "-m", "cosimstep", "run", str(system), "-q",
                              "--until", "30", "--out", str(db)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "TMPDIR": str(tmp)})
+                            env={**os.environ, "TMPDIR": str(tmp)},
+                            # a shell starting the suite in the background (`cmd &`) ignores
+                            # SIGINT for it, and an ignored signal is inherited: Ctrl-C must
+                            # reach this run as it reaches one started from a terminal
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not run_table_has_run(db):
         time.sleep(0.01)
