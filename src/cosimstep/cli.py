@@ -486,7 +486,10 @@ def sweep_command(system: str, params: tuple[str, ...], design_kind: str, sample
 
 @main.command("plot-sweep")
 @click.argument("db", type=click.Path(dir_okay=False))
-@click.option("--x", "x", required=True, help="A swept name for the horizontal axis.")
+@click.option("--x", "x", help="A swept name for the horizontal axis.")
+@click.option("--work-precision", is_flag=True, help="Calls against error, one line per "
+              "sweep's run options (sweeps of tol or step with other controllers or masters "
+              "into the same file).")
 @click.option("--y", "y", help="A second swept name: contours of Z over the X-Y plane.")
 @click.option("--z", "z", default="calls_total", show_default=True,
               help="What is drawn: calls_total, error, error_estimate, steps, wall_s or "
@@ -495,10 +498,11 @@ def sweep_command(system: str, params: tuple[str, ...], design_kind: str, sample
               "where the values are positive).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Figure file (.png, .pdf, .svg).")
-def plot_sweep_command(db: str, x: str, y: str | None, z: str, linear: bool,
-                       output: str) -> None:
-    """Plot a sweep's runs: Z against X, or contours of Z over X and Y (thesis figs. 68-70)."""
-    from cosimstep.plotting import plot_sweep
+def plot_sweep_command(db: str, x: str | None, work_precision: bool, y: str | None, z: str,
+                       linear: bool, output: str) -> None:
+    """Plot a sweep's runs: Z against X, contours of Z over X and Y (thesis figs. 68-70), or
+    the work-precision diagram."""
+    from cosimstep.plotting import plot_sweep, plot_work_precision
     from cosimstep.sweep import SweepTable
 
     if not Path(db).is_file():
@@ -510,6 +514,12 @@ def plot_sweep_command(db: str, x: str, y: str | None, z: str, linear: bool,
         frame = table.frame()
     finally:
         table.close()
+    if work_precision and not frame.empty:
+        click.echo(f"wrote {plot_work_precision(frame, output)}")
+        return
+    if x is None:
+        _config_exit(ConfigurationError([Problem("--x", "missing", "give --x NAME or "
+                                                 "--work-precision")], "the command line"))
     missing = [n for n in (x, y, z) if n is not None and n not in frame.columns]
     if missing or frame.empty:
         _config_exit(ConfigurationError(

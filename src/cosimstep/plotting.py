@@ -191,9 +191,39 @@ def _levels(values: np.ndarray, norm: Any) -> Any:
 
 
 SUMMARY = ("status", "message", "calls_total", "steps", "error", "error_estimate", "wall_s",
-           "store")
+           "store", "options")
 
 
 def _swept(frame: Any) -> list[str]:
     """The swept names of a sweep's DataFrame: the columns before its summary's."""
     return [c for c in frame.columns if c not in SUMMARY and not c.startswith("calls.")]
+
+
+def plot_work_precision(frame: Any, path: str | Path) -> Path:
+    """Calls against error, one line per sweep's run options (a controller, a master): the
+    work–precision diagram of runs that swept ``tol`` or ``step``, cheapest curve lowest."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = frame[(frame["status"] == "ok") & frame["error"].notna() & (frame["error"] > 0)]
+    fig, ax = plt.subplots(figsize=(7, 5), constrained_layout=True)
+    swept = [c for c in _swept(frame) if c in ("tol", "step")]
+    for label, rows in ok.groupby("options"):
+        rows = rows.sort_values("error")
+        ax.loglog(rows["error"], rows["calls_total"], "o-", label=label)
+        for _, row in rows.iterrows():
+            if swept:
+                ax.annotate(f"{row[swept[0]]:g}", (row["error"], row["calls_total"]),
+                            fontsize=7, textcoords="offset points", xytext=(3, 3))
+    ax.set_xlabel("error (max |e| / (1 + |y|) against the reference)")
+    ax.set_ylabel("sub-model calls")
+    ax.set_title(f"work–precision ({len(ok)} runs" + (f"; points labelled by {swept[0]})"
+                                                       if swept else ")"), fontsize=10)
+    ax.legend(fontsize=8)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

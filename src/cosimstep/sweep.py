@@ -234,24 +234,26 @@ class SweepTable:
     def frame(self, keys: Sequence[str] | None = None) -> Any:
         """The runs (those of ``keys``, in that order) as a pandas DataFrame: one column per
         swept name, then status, message, calls per sub-model (``calls.NAME``), calls_total,
-        steps, error, error_estimate, wall_s."""
+        steps, error, error_estimate, wall_s, store, and the sweep's run options as a label
+        (``options``: runs of sweeps with other options share a file)."""
         import pandas as pd
 
         rows = {r[0]: r for r in self._db.execute(
             "SELECT key, point_json, status, message, calls_json, calls_total, steps, error, "
-            "error_estimate, wall_s, store FROM sweep_run")}
+            "error_estimate, wall_s, store, options_json FROM sweep_run")}
         order = list(keys) if keys is not None else sorted(rows)
         records = []
         for key in order:
             if key not in rows:
                 continue
-            _, point, status, message, calls, total, steps, error, estimate, wall, store = \
-                rows[key]
+            _, point, status, message, calls, total, steps, error, estimate, wall, store, \
+                options = rows[key]
             record = dict(json.loads(point))
             record.update(status=status, message=message)
             record.update({f"calls.{m}": c for m, c in json.loads(calls).items()})
             record.update(calls_total=total, steps=steps, error=error,
-                          error_estimate=estimate, wall_s=wall, store=store)
+                          error_estimate=estimate, wall_s=wall, store=store,
+                          options=_label(json.loads(options)))
             records.append(record)
         return pd.DataFrame.from_records(records)
 
@@ -295,6 +297,11 @@ def sweep(system: str | Path, params: Sequence[str | Axis], *, design_kind: str 
         return table.frame(keys)
     finally:
         table.close()
+
+
+def _label(options: Mapping[str, Any]) -> str:
+    """The run options of a sweep as one short label (``master=multirate tol=0.001``)."""
+    return " ".join(f"{k}={v}" for k, v in sorted(options.items())) or "file defaults"
 
 
 def _digest(key: str) -> str:

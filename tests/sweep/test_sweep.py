@@ -164,3 +164,31 @@ def test_traces_are_kept_one_store_per_run(tmp_path, examples) -> None:
         stored = cosimstep.read_run(row["store"])
         theta2[row["l2"]] = stored.values[:, stored.names.index("bar2.theta")]
     assert not np.allclose(theta2[0.5], theta2[1.0])  # two different pendulums
+
+
+def test_work_precision_plot_across_run_options(tmp_path) -> None:
+    """Two sweeps of tol with other masters in one file: one line each, labelled by the run
+    options; the frame carries them as `options`."""
+    from click.testing import CliRunner
+
+    from cosimstep.cli import main
+    from cosimstep.sweep import SweepTable, run_key
+
+    db = tmp_path / "wp.db"
+    table = SweepTable(db)
+    for master, cost in (("gauss-seidel", 1.0), ("multirate", 0.6)):
+        for tol in (1e-3, 1e-4, 1e-5):
+            point, options = {"tol": tol}, {"master": master}
+            table.add(run_key("x.toml", point, options), "x.toml", options,
+                      {"point": point, "status": "ok", "message": "", "calls": {},
+                       "calls_total": int(cost * 100 * tol ** -0.25), "steps": 1,
+                       "error": tol / 3, "error_estimate": None, "wall_s": 0.1})
+    assert sorted(set(table.frame()["options"])) == ["master=gauss-seidel", "master=multirate"]
+    table.close()
+    figure = tmp_path / "wp.png"
+    res = CliRunner().invoke(main, ["plot-sweep", str(db), "--work-precision", "-o",
+                                    str(figure)])
+    assert res.exit_code == 0, res.output
+    assert figure.read_bytes()[:4] == b"\x89PNG" and figure.stat().st_size > 10_000
+    res = CliRunner().invoke(main, ["plot-sweep", str(db), "-o", str(figure)])
+    assert res.exit_code == 2 and "--work-precision" in res.output
