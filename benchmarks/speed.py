@@ -125,6 +125,18 @@ def bare_ring(n: int, steps: int, h: float) -> np.ndarray:
     return table
 
 
+def ring_run(n: int, steps: int, store: Path | None = None, h: float = 0.01
+             ) -> Callable[[], None]:
+    """A run of the ring of ``n`` lags, Jacobi with inputs held, built afresh each time
+    (``store``: its results file, replaced)."""
+    def run() -> None:
+        if store is not None:
+            store.unlink(missing_ok=True)
+        system, _ = ring(n)
+        simulate(system, steps * h, Fixed(h), MasterOptions("jacobi", 0), store=store)
+    return run
+
+
 def ring_rows(folder: Path) -> tuple[list[str], dict[str, float]]:
     """Per model-step: the whole run (set-up included) and the slope between two run lengths
     (the cost of one more step, set-up excluded), each against the bare loop's."""
@@ -134,24 +146,11 @@ def ring_rows(folder: Path) -> tuple[list[str], dict[str, float]]:
         steps = 100_000 // n
         store = folder / f"ring{n}.db"
 
-        def plain(length: int, n: int = n) -> Callable[[], None]:
-            def run() -> None:
-                system, _ = ring(n)
-                simulate(system, length * h, Fixed(h), MasterOptions("jacobi", 0))
-            return run
-
-        def stored(length: int, n: int = n, store: Path = store) -> Callable[[], None]:
-            def run() -> None:
-                store.unlink(missing_ok=True)
-                system, _ = ring(n)
-                simulate(system, length * h, Fixed(h), MasterOptions("jacobi", 0), store=store)
-            return run
-
         runners = {}
         for length in (steps, 3 * steps):
             runners[f"bare{length}"] = lambda n=n, length=length: bare_ring(n, length, h)
-            runners[f"plain{length}"] = plain(length)
-            runners[f"store{length}"] = stored(length)
+            runners[f"plain{length}"] = ring_run(n, length)
+            runners[f"store{length}"] = ring_run(n, length, store)
         med = _median_times(runners)
         system, _ = ring(n)
         result = simulate(system, steps * h, Fixed(h), MasterOptions("jacobi", 0))
@@ -178,27 +177,9 @@ def ring_rows(folder: Path) -> tuple[list[str], dict[str, float]]:
 # -- 3. the store --------------------------------------------------------------------------------
 def store_costs(folder: Path) -> tuple[float, float]:
     """Fixed cost of a run's store (a one-step run of one lag) and cost per stored value."""
-    db = folder / "fixed.db"
-
-    def one(store: Path | None) -> Callable[[], None]:
-        def run() -> None:
-            if store is not None:
-                store.unlink(missing_ok=True)
-            system, _ = ring(1)
-            simulate(system, 0.01, Fixed(0.01), MasterOptions("jacobi", 0), store=store)
-        return run
-
-    def many(store: Path | None) -> Callable[[], None]:
-        def run() -> None:
-            if store is not None:
-                store.unlink(missing_ok=True)
-            system, _ = ring(100)
-            simulate(system, 10.0, Fixed(0.01), MasterOptions("jacobi", 0), store=store)
-        return run
-
-    big = folder / "values.db"
-    med = _median_times({"one": one(None), "one_store": one(db), "many": many(None),
-                         "many_store": many(big)}, repeats=7)
+    med = _median_times({"one": ring_run(1, 1), "one_store": ring_run(1, 1, folder / "fixed.db"),
+                         "many": ring_run(100, 1000),
+                         "many_store": ring_run(100, 1000, folder / "values.db")}, repeats=7)
     fixed = med["one_store"] - med["one"]
     per_value = (med["many_store"] - med["many"] - fixed) / (100 * 1001)
     return fixed, per_value

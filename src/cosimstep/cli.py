@@ -475,8 +475,8 @@ def sweep_command(system: str, params: tuple[str, ...], design_kind: str, sample
                       progress=False if quiet else None, keep=keep, **options)
     except ConfigurationError as exc:
         _config_exit(exc)
-    except ValueError as exc:
-        _config_exit(ConfigurationError([Problem("--param", str(exc),
+    except ValueError as exc:  # a design, an axis or a run option the first point refused
+        _config_exit(ConfigurationError([Problem("sweep", str(exc),
                                                  "see `cosimstep sweep --help`")],
                                         "the command line"))
     counts = frame["status"].value_counts().to_dict() if len(frame) else {}

@@ -335,8 +335,9 @@ def _execute(todo: list[tuple[str, dict[str, float], str | None]], system: str,
                 Path(store).unlink(missing_ok=True)
         futures = {client.submit(run_point, system, p, options, store, pure=False): k
                    for k, p, store in todo}
-        quiet = progress is False or (progress is None and not _tty())
-        with tqdm(total=len(futures), unit="run", desc="sweep", disable=quiet) as bar:
+        # disable=None: tqdm shows the bar only on a terminal, as a run's progress bar
+        with tqdm(total=len(futures), unit="run", desc="sweep",
+                  disable=None if progress is None else not progress) as bar:
             for future in as_completed(futures):
                 key = futures[future]
                 try:
@@ -354,12 +355,6 @@ def _execute(todo: list[tuple[str, dict[str, float], str | None]], system: str,
         client.close()
         if cluster is not None:
             cluster.close()
-
-
-def _tty() -> bool:
-    import sys
-
-    return sys.stderr.isatty()
 
 
 __all__ = ["DESIGNS", "Axis", "SweepTable", "design", "parse_axis", "run_point", "sweep"]
