@@ -33,6 +33,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 DESIGNS = ("full", "lhs", "sobol")
 KEEP = ("summary", "traces")
 RUN_OPTIONS = ("tol", "step", "until")
@@ -42,8 +44,10 @@ SCHEMA = """
 CREATE TABLE IF NOT EXISTS sweep_run(
     key TEXT PRIMARY KEY, system TEXT, point_json TEXT, options_json TEXT, status TEXT,
     message TEXT, calls_json TEXT, calls_total INTEGER, steps INTEGER, error REAL,
-    error_estimate REAL, wall_s REAL, finished REAL, store TEXT);
+    error_estimate REAL, wall_s REAL, finished REAL, store TEXT, rmse REAL, step_min REAL);
 """
+ADDED_COLUMNS = {"store": "TEXT", "rmse": "REAL", "step_min": "REAL"}
+"""Columns a table written by an earlier version may lack (added on open)."""
 
 
 @dataclass(frozen=True)
@@ -145,21 +149,39 @@ def run_point(system: str, point: Mapping[str, float], options: Mapping[str, Any
     come on top. ``store``: an SQLite file for the run's whole trajectory (``None``: none).
     """
     start = time.perf_counter()
-    summary: dict[str, Any] = {"point": dict(point), "status": "failed", "message": "",
-                               "calls": {}, "calls_total": 0, "steps": 0, "error": None,
-                               "error_estimate": None, "store": store}
+    summary = _failed(point, "")
+    summary["store"] = store
     try:
         result = _simulate(system, point, options, store)
         summary.update(status=result.status, message=result.message, calls=result.calls,
                        calls_total=result.calls_total, steps=result.steps_accepted,
                        error=None if result.error is None else result.error.max_scaled,
-                       error_estimate=result.error_estimate)
+                       rmse=None if result.error is None else result.error.rmse,
+                       error_estimate=result.error_estimate, step_min=step_min(result))
     except Exception as exc:  # a bad point must not end the sweep
         last = traceback.extract_tb(exc.__traceback__)[-1:]
         where = f" ({last[0].filename}:{last[0].lineno})" if last else ""
         summary["message"] = f"{type(exc).__name__}: {exc}{where}"
     summary["wall_s"] = time.perf_counter() - start
     return summary
+
+
+def _failed(point: Mapping[str, float], message: str) -> dict[str, Any]:
+    """The summary of a run that produced nothing."""
+    return {"point": dict(point), "status": "failed", "message": message, "calls": {},
+            "calls_total": 0, "steps": 0, "error": None, "rmse": None, "error_estimate": None,
+            "step_min": None, "wall_s": float("nan"), "store": None}
+
+
+def step_min(result: Any) -> float | None:
+    """The smallest communication step any sub-model took, not counting each one's last
+    step (cut short to land on the end): what the thesis's fixed-step comparison runs at
+    (4.2.7: "the smallest time step that the RKF algorithm has determined")."""
+    series = [m.step_sizes for m in result.models.values()] or [result.step_sizes]
+    inner = [np.asarray(h)[:-1] for h in series if len(h) > 1]
+    inner = [h[h > 0] for h in inner]
+    return float(min(h.min() for h in inner if h.size)) if any(h.size for h in inner) \
+        else None
 
 
 def prepare(system: str, point: Mapping[str, float], options: Mapping[str, Any]
@@ -213,8 +235,9 @@ class SweepTable:
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.executescript(SCHEMA)
         have = {row[1] for row in self._db.execute("PRAGMA table_info(sweep_run)")}
-        if "store" not in have:  # a table written before runs could keep their trajectories
-            self._db.execute("ALTER TABLE sweep_run ADD COLUMN store TEXT")
+        for column, kind in ADDED_COLUMNS.items():
+            if column not in have:
+                self._db.execute(f"ALTER TABLE sweep_run ADD COLUMN {column} {kind}")
 
     def finished(self) -> dict[str, str | None]:
         """Each recorded run's key and its trajectory store (``None``: summary only)."""
@@ -223,36 +246,38 @@ class SweepTable:
     def add(self, key: str, system: str, options: Mapping[str, Any],
             summary: Mapping[str, Any]) -> None:
         self._db.execute(
-            "INSERT OR REPLACE INTO sweep_run VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            "INSERT OR REPLACE INTO sweep_run (key, system, point_json, options_json, status, "
+            "message, calls_json, calls_total, steps, error, error_estimate, wall_s, finished, "
+            "store, rmse, step_min) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             (key, system, json.dumps(summary["point"], sort_keys=True),
              json.dumps(dict(options), sort_keys=True), summary["status"], summary["message"],
              json.dumps(summary["calls"], sort_keys=True), summary["calls_total"],
              summary["steps"], summary["error"], summary["error_estimate"], summary["wall_s"],
-             time.time(), summary.get("store")))
+             time.time(), summary.get("store"), summary.get("rmse"), summary.get("step_min")))
         self._db.commit()
 
     def frame(self, keys: Sequence[str] | None = None) -> Any:
         """The runs (those of ``keys``, in that order) as a pandas DataFrame: one column per
         swept name, then status, message, calls per sub-model (``calls.NAME``), calls_total,
-        steps, error, error_estimate, wall_s, store, and the sweep's run options as a label
-        (``options``: runs of sweeps with other options share a file)."""
+        steps, error, rmse, error_estimate, step_min, wall_s, store, and the sweep's run
+        options as a label (``options``: runs of sweeps with other options share a file)."""
         import pandas as pd
 
         rows = {r[0]: r for r in self._db.execute(
             "SELECT key, point_json, status, message, calls_json, calls_total, steps, error, "
-            "error_estimate, wall_s, store, options_json FROM sweep_run")}
+            "error_estimate, wall_s, store, options_json, rmse, step_min FROM sweep_run")}
         order = list(keys) if keys is not None else sorted(rows)
         records = []
         for key in order:
             if key not in rows:
                 continue
             _, point, status, message, calls, total, steps, error, estimate, wall, store, \
-                options = rows[key]
+                options, rmse, smallest = rows[key]
             record = dict(json.loads(point))
             record.update(status=status, message=message)
             record.update({f"calls.{m}": c for m, c in json.loads(calls).items()})
-            record.update(calls_total=total, steps=steps, error=error,
-                          error_estimate=estimate, wall_s=wall, store=store,
+            record.update(calls_total=total, steps=steps, error=error, rmse=rmse,
+                          error_estimate=estimate, step_min=smallest, wall_s=wall, store=store,
                           options=_label(json.loads(options)))
             records.append(record)
         return pd.DataFrame.from_records(records)
@@ -261,14 +286,17 @@ class SweepTable:
         self._db.close()
 
 
-def sweep(system: str | Path, params: Sequence[str | Axis], *, design_kind: str = "full",
-          samples: int | None = None, seed: int | None = None, out: str | Path = "sweep.db",
+def sweep(system: str | Path, params: Sequence[str | Axis] = (), *, design_kind: str = "full",
+          samples: int | None = None, seed: int | None = None,
+          points: Sequence[Mapping[str, float]] | None = None, out: str | Path = "sweep.db",
           workers: int | None = None, scheduler: str | None = None,
           progress: bool | None = None, keep: str = "summary", **options: Any) -> Any:
     """Run ``system`` at every point of the design on Dask; return the runs as a DataFrame.
 
     ``params``: axes (``"l2=0.5,1,2"``, ``"tol=1e-6:1e-3"`` or :class:`Axis`); ``options``:
     ``master``, ``extrapolation``, ``controller``, ``tol``, ``step``, ``until``, ``coupling``.
+    ``points``: the design written out instead of ``params`` (a study whose points are not a
+    product of axes: each case with its own step, or ``until`` tied to a length).
     Runs already in ``out`` are not run again. ``workers``: worker processes of the local
     cluster (default: one per core); ``scheduler``: the address of an existing Dask scheduler
     instead. Each run's summary is written to ``out`` as it finishes. ``keep="traces"`` also
@@ -278,11 +306,14 @@ def sweep(system: str | Path, params: Sequence[str | Axis], *, design_kind: str 
     if keep not in KEEP:
         raise ValueError(f"unknown keep '{keep}'; choose one of {', '.join(KEEP)}")
     system = str(Path(system).resolve())
-    axes = [a if isinstance(a, Axis) else parse_axis(a) for a in params]
-    points = design(axes, design_kind, samples, seed)
+    points = _points(params, design_kind, samples, seed, points)
     options = {k: v for k, v in options.items() if v is not None}
     keys = [run_key(system, p, options) for p in points]
-    prepare(system, points[0], options)  # a misspelt name fails here, not in every run
+    firsts: dict[tuple[str, ...], dict[str, float]] = {}
+    for p in points:
+        firsts.setdefault(tuple(sorted(p)), p)
+    for first in firsts.values():  # a misspelt name fails here, not in every run
+        prepare(system, first, options)
     table = SweepTable(out)
     try:
         done = table.finished()
@@ -297,6 +328,26 @@ def sweep(system: str | Path, params: Sequence[str | Axis], *, design_kind: str 
         return table.frame(keys)
     finally:
         table.close()
+
+
+def _points(params: Sequence[str | Axis], design_kind: str, samples: int | None,
+            seed: int | None, points: Sequence[Mapping[str, float]] | None
+            ) -> list[dict[str, float]]:
+    """The design's points: from the axes, or the ``points`` given (not both)."""
+    if points is None:
+        axes = [a if isinstance(a, Axis) else parse_axis(a) for a in params]
+        return design(axes, design_kind, samples, seed)
+    if params:
+        raise ValueError("give the swept names as params or the points written out, not both")
+    if not points:
+        raise ValueError("points: the list is empty; give at least one point")
+    out = []
+    for i, point in enumerate(points):
+        try:
+            out.append({str(k): float(v) for k, v in point.items()})
+        except (TypeError, ValueError):
+            raise ValueError(f"points[{i}]: values must be numbers, got {dict(point)}") from None
+    return out
 
 
 def _label(options: Mapping[str, Any]) -> str:
@@ -343,12 +394,7 @@ def _execute(todo: list[tuple[str, dict[str, float], str | None]], system: str,
                 try:
                     summary = future.result()
                 except Exception as exc:  # the task itself was lost (workers kept dying)
-                    point = dict(json.loads(key)["point"])
-                    summary = {"point": point, "status": "failed",
-                               "message": f"{type(exc).__name__}: {exc}", "calls": {},
-                               "calls_total": 0, "steps": 0, "error": None,
-                               "error_estimate": None, "wall_s": float("nan"),
-                               "store": None}
+                    summary = _failed(json.loads(key)["point"], f"{type(exc).__name__}: {exc}")
                 table.add(key, system, options, summary)
                 bar.update(1)
     finally:

@@ -192,3 +192,25 @@ def test_work_precision_plot_across_run_options(tmp_path) -> None:
     assert figure.read_bytes()[:4] == b"\x89PNG" and figure.stat().st_size > 10_000
     res = CliRunner().invoke(main, ["plot-sweep", str(db), "-o", str(figure)])
     assert res.exit_code == 2 and "--work-precision" in res.output
+
+
+def test_points_written_out_each_with_its_own_step_and_end(tmp_path, examples) -> None:
+    """A study whose points are not a product of axes: the end time tied to the length."""
+    system = examples / "double_pendulum_slow.toml"
+    points = [{"l2": 1.0, "step": 0.01, "until": 1.0}, {"l2": 0.5, "step": 0.005, "until": 0.5}]
+    frame = sweep(system, points=points, out=tmp_path / "s.db", workers=1, progress=False)
+    assert list(frame["status"]) == ["ok", "ok"]
+    assert list(frame["calls_total"]) == [2 * 100, 2 * 100]
+    assert frame["step_min"].tolist() == pytest.approx([0.01, 0.005])
+    assert (frame["rmse"] > 0).all() and (frame["rmse"] <= frame["error"] * 2).all()
+    # an adaptive run's smallest step is one it took, below its largest
+    adaptive = sweep(system, points=[{"tol": 1e-4}], out=tmp_path / "a.db", workers=1,
+                     progress=False, until=2.0, controller="pc")
+    assert 0 < adaptive["step_min"].iloc[0] < 2.0 / adaptive["steps"].iloc[0]
+    with pytest.raises(ValueError, match="not both"):
+        sweep(system, ["l2=1"], points=points, out=tmp_path / "x.db")
+    with pytest.raises(ValueError, match="empty"):
+        sweep(system, points=[], out=tmp_path / "x.db")
+    with pytest.raises(Exception, match="l9"):
+        sweep(system, points=[{"l2": 1.0}, {"l9": 2.0}], out=tmp_path / "x.db")
+    assert not (tmp_path / "x.db").exists()
