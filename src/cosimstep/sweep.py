@@ -314,6 +314,8 @@ def sweep(system: str | Path, params: Sequence[str | Axis] = (), *, design_kind:
         firsts.setdefault(tuple(sorted(p)), p)
     for first in firsts.values():  # a misspelt name fails here, not in every run
         prepare(system, first, options)
+    if scheduler is not None:
+        check_scheduler(scheduler)  # before anything is written
     table = SweepTable(out)
     try:
         done = table.finished()
@@ -348,6 +350,19 @@ def _points(params: Sequence[str | Axis], design_kind: str, samples: int | None,
         except (TypeError, ValueError):
             raise ValueError(f"points[{i}]: values must be numbers, got {dict(point)}") from None
     return out
+
+
+def check_scheduler(address: str, timeout: float = 10.0) -> None:
+    """``ValueError`` naming the address unless a Dask scheduler answers there in time."""
+    from distributed import Client
+
+    try:
+        Client(address, timeout=timeout).close()
+    except (OSError, TimeoutError) as exc:
+        raise ValueError(f"no Dask scheduler answers at {address} within {timeout:g} s "
+                         f"({type(exc).__name__}); start one (`dask scheduler`) and give the "
+                         "address it prints, or leave --scheduler out to use a local "
+                         "cluster") from None
 
 
 def _label(options: Mapping[str, Any]) -> str:

@@ -74,6 +74,20 @@ def test_the_command_line_reports_bad_names_before_running(tmp_path, examples) -
     assert res.exit_code == 2 and "parameters.l9: no model uses this parameter" in res.output
     res = CliRunner().invoke(main, ["sweep", system, "--param", "l2=1:2", "--out", out])
     assert res.exit_code == 2 and "needs listed values" in res.output
+    res = CliRunner().invoke(main, ["sweep", system, "--param", "l2=2:1", "--out", out])
+    assert res.exit_code == 2 and "LOW < HIGH" in res.output
+    res = CliRunner().invoke(main, ["sweep", system, "--param", "l2=", "--out", out])
+    assert res.exit_code == 2 and "NAME=V1,V2" in res.output
+    import socket
+
+    with socket.socket() as free:  # a port nobody listens on
+        free.bind(("127.0.0.1", 0))
+        port = free.getsockname()[1]
+    res = CliRunner().invoke(main, ["sweep", system, "--param", "l2=1", "--out", out,
+                                    "--scheduler", f"tcp://127.0.0.1:{port}"])
+    assert res.exit_code == 2 and f"no Dask scheduler answers at tcp://127.0.0.1:{port}" \
+        in res.output, res.output
+    assert not (tmp_path / "s.db").exists()  # nothing started, nothing written
 
 
 def test_a_worker_killed_mid_sweep_loses_no_run(tmp_path, examples) -> None:
