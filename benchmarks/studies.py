@@ -235,7 +235,7 @@ def table_lines(rows: list[dict[str, Any]]) -> list[str]:
              "|---|---|---|---|---|---|---|"]
     for row in rows:
         c, r = row["case"], row["ours"]
-        thesis = f"{c.thesis_fixed or 'n/a'} / {c.thesis_rkf}"
+        thesis = f"{c.thesis_fixed or 'n/a'} / {c.thesis_rkf or 'n/a'}"
         fixed = _run_cell(row["fixed"]) if c.thesis_step else "—"
         if _ok(r):
             per = " / ".join(str(v) for v in _calls(r).values())
@@ -320,19 +320,20 @@ def _grid_figures(frame: pd.DataFrame) -> list[str]:
     names = []
     for fig_no, (l3, part) in zip((68, 69, 70), frame.groupby("l3")):
         fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), constrained_layout=True)
-        for ax, z, title, norm in (
+        for ax, z, title, levels in (
                 (axes[0], "ratio", "cosimstep calls / fixed calls at equal error",
-                 colors.LogNorm(0.1, 10)),
-                (axes[1], "err_over_tol", "cosimstep error / tol", colors.LogNorm())):
+                 np.logspace(-1, 1, 17)),
+                (axes[1], "err_over_tol", "cosimstep error / tol", np.logspace(-2, 2, 17))):
             ok = part.dropna(subset=[z])
             x, y = np.log10(ok["l1"].to_numpy(float)), np.log10(ok["l2"].to_numpy(float))
             if len(ok) >= 3:
-                shade = ax.tricontourf(x, y, ok[z].to_numpy(float), levels=12, norm=norm,
-                                       cmap="viridis")
+                shade = ax.tricontourf(x, y, ok[z].to_numpy(float), levels=levels,
+                                       norm=colors.LogNorm(levels[0], levels[-1]),
+                                       cmap="viridis", extend="both")
                 fig.colorbar(shade, ax=ax)
                 if z == "ratio":
                     ax.tricontour(x, y, ok[z].to_numpy(float), levels=[1.0], colors="w")
-            ax.plot(x, y, "k.", ms=4)
+            ax.plot(x, y, "k.", ms=5, clip_on=False)
             ax.set(xlabel="log10 l1", ylabel="log10 l2", title=f"{title}, l3 = {l3:g}")
         name = f"studies_fig{fig_no}.png"
         fig.savefig(FIGURES / name, dpi=110)
@@ -375,7 +376,7 @@ def fig29(runner: Runner) -> list[str]:
     ok = frame[(frame["status"] == "ok") & (frame["rmse"] > 0)]
     fig, ax = plt.subplots(figsize=(7, 5), constrained_layout=True)
     x, y = np.log10(ok["f_hz"].to_numpy(float)), np.log10(ok["step"].to_numpy(float))
-    shade = ax.tricontourf(x, y, ok["rmse"].to_numpy(float), levels=np.logspace(-12, 1, 14),
+    shade = ax.tricontourf(x, y, ok["rmse"].to_numpy(float), levels=np.logspace(-7, 1, 17),
                            norm=colors.LogNorm(), cmap="viridis", extend="both")
     fig.colorbar(shade, ax=ax, label="RMSE against the monolithic model [rad, rad/s]")
     ax.plot(x, y, "k.", ms=4)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -42,14 +43,35 @@ class Reference:
         for a, b in itertools.pairwise(cuts):
             p = model.parameters.at(a)
             lo, hi = one_side(a, b, events)
-            sol = solve_ivp(lambda s, y, p=p, lo=lo, hi=hi:
-                            model.derivative(min(max(s, lo), hi), y, u, p), (a, b), x,
-                            method="DOP853", rtol=RTOL, atol=ATOL, dense_output=True)
+            x = self._segment(a, b, x, lambda s, y, p=p, lo=lo, hi=hi:
+                              model.derivative(min(max(s, lo), hi), y, u, p))
+        self._span = (t0, t_end)
+
+    def _segment(self, a: float, b: float, x: np.ndarray, f: Any) -> np.ndarray:
+        """Integrate ``[a, b]``, stopping at each *state event* of a model that has them
+        (``state_events()``: indicators whose rise through zero is an event;
+        ``on_state_event(i, t, x)``: what it changes) and going on from there."""
+        model = self.model
+        while True:
+            indicators = model.state_events() if hasattr(model, "state_events") else []
+            watched = []
+            for g in indicators:
+                def crossing(s: float, y: np.ndarray, g: Any = g) -> float:
+                    return g(s, y)
+                crossing.terminal, crossing.direction = True, 1.0  # type: ignore[attr-defined]
+                watched.append(crossing)
+            sol = solve_ivp(f, (a, b), x, method=getattr(model, "reference_method", "DOP853"),
+                            rtol=RTOL, atol=ATOL, dense_output=True, events=watched or None)
             if not sol.success:
                 raise RuntimeError(f"reference solution failed on [{a}, {b}]: {sol.message}")
-            self._segments.append((a, b, sol.sol))
-            x = sol.y[:, -1]
-        self._span = (t0, t_end)
+            hit = [i for i, te in enumerate(sol.t_events or []) if len(te)]
+            if sol.status != 1 or not hit:
+                self._segments.append((a, b, sol.sol))
+                return sol.y[:, -1]
+            t_e, x = float(sol.t_events[hit[0]][0]), sol.y_events[hit[0]][0]
+            self._segments.append((a, t_e, sol.sol))
+            model.on_state_event(hit[0], t_e, x)
+            a = t_e
 
     def values(self, times: np.ndarray, names: list[str]) -> np.ndarray:
         """Reference values of the mapped co-simulation outputs ``names`` at ``times``."""

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from functools import partial
 
 from cosimstep.adapters.ode import InternalSolver, ParameterSchedule
-from cosimstep.models import bouncing, linear, oscillators, pendulum, thermal
+from cosimstep.models import bouncing, linear, oscillators, pendulum, ship, thermal
 from cosimstep.submodel import SubModel
 
 Builder = Callable[[ParameterSchedule, Mapping[str, float], InternalSolver | None], SubModel]
@@ -87,3 +87,23 @@ register(ModelKind("oscillators.mass2", "mass 2: m2 x2'' = -k2 x2 - c2 v2 + F (i
 register(ModelKind("oscillators.spring", "the coupling spring-damper: F = k (x1 - x2) + "
                    "c (v1 - v2), direct feedthrough (inputs x1, v1, x2, v2)",
                    oscillators.default_parameters(), oscillators.START, oscillators.spring))
+
+_SHIP = ship.default_parameters()
+register(ModelKind("ship", "the ship plant (load zones, chilled-water network, controller), "
+                   "monolithic; hit at t_hit, isolation located as a state event", _SHIP,
+                   ship.START, ship.monolithic))
+register(ModelKind("ship.hydraulics", "chilled-water network: pumps A and B, supply main with "
+                   "an isolable middle section, zone branches (inputs v1..v3, iso, xc, pump_b, "
+                   "intact; outputs pm, q1..q3); stiff", _SHIP, ship.START, ship.hydraulics))
+for _i in ship.ZONES:
+    register(ModelKind(f"ship.zone{_i}", f"load zone {_i}: temperature T (inputs q, Ts)", _SHIP,
+                       ship.START, partial(ship.zone, _i)))
+register(ModelKind("ship.chiller", "chiller and water tank: supply temperature Ts (inputs "
+                   "T1..T3, q1..q3)", _SHIP, ship.START, ship.chiller))
+register(ModelKind("ship.zone_control", "zone PI controllers: valve positions v1..v3 (inputs "
+                   "T1..T3)", _SHIP, ship.START, ship.zone_control))
+register(ModelKind("ship.damage", "damage (discrete events): intact = 1, then 0 from t_hit, or "
+                   "from a Weibull lifetime when hit_scale > 0", _SHIP, ship.START, ship.damage))
+register(ModelKind("ship.isolation", "plant controller (discrete events): armed at t_arm, "
+                   "isolates the section when pm falls to p_alarm (outputs iso, xc, pump_b)",
+                   _SHIP, ship.START, ship.isolation))

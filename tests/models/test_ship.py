@@ -1,0 +1,68 @@
+"""The ship plant (issue 17): a hit section isolated by a state event, in the co-simulation as
+in the monolithic reference, and the error of the split plant against that reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cosimstep.models import ship
+from cosimstep.sweep import prepare
+
+from conftest import EXAMPLES
+
+SHORT = {"t_hit": 1.0, "t_arm": 0.5}  # the hit early, so a test runs 2 s, not 600
+
+
+def run(point: dict, **options):
+    from cosimstep.simulate import simulate
+
+    spec, controller, master = prepare(str(EXAMPLES / "ship_plant.toml"), point, options)
+    result = simulate(spec.system, spec.until, controller, master, reference=spec.reference,
+                      progress=False)
+    return result, controller, spec.reference
+
+
+@pytest.fixture(scope="module")
+def plant():
+    return run(SHORT, until=2.0, master="gauss-seidel", tol=1e-3)
+
+
+def test_the_network_starts_at_its_steady_state() -> None:
+    p = ship.default_parameters()
+    x = [ship.HYDRAULIC_START[n] for n in ship.HYDRAULIC_STATES]
+    rates = ship.hydraulics_rhs(x, [0.4] * 3, 1.0, 0.0, 0.0, 1.0, p)
+    assert np.max(np.abs(rates)) < 1e-3  # bar/s and kg/s^2: no start-up transient
+
+
+def test_the_hit_is_isolated_where_the_reference_isolates_it(plant) -> None:
+    result, _, reference = plant
+    assert result.status == "ok", result.message
+    kinds = [(e.source, e.kind) for e in result.events]
+    assert kinds == [("isolation", "armed"), ("hit", "timetable"), ("isolation", "isolate")]
+    trip = result.events[-1].t
+    # the reference stops its integration at the crossing it located: a segment boundary
+    boundaries = [b for _, b, _ in reference._segments]
+    located = [b for b in boundaries if 1.0 < b < 1.1]
+    assert len(located) == 1 and abs(trip - located[0]) < 1e-5, (trip, located)
+    assert 1.0 < trip < 1.01  # a burst: the meter reaches the alarm within milliseconds
+    out = result["isolation.iso"]
+    assert out[result.times < trip].min() == 1.0 and out[result.times > trip].max() == 0.0
+
+
+def test_the_split_plant_keeps_its_tolerance_against_the_reference(plant) -> None:
+    result, _, _ = plant
+    assert result.error.max_scaled < 10 * 1e-3
+    # zones 2 and 3 are fed backwards through the cross-connect after the isolation
+    after = result.times > 1.5
+    assert np.all(result["network.q2"][after] > 1.0) and np.all(result["network.q3"][after] > 1.0)
+
+
+def test_a_weibull_hit_is_the_failure_law_draw() -> None:
+    from cosimstep.events import FailureModel
+
+    p = {**ship.default_parameters(), "hit_scale": 300.0, "hit_shape": 2.0, "hit_seed": 7.0}
+    model = FailureModel("weibull", scale=300.0, shape=2.0, seed=7)
+    model.initialize(0.0)
+    assert ship.hit_time(p) == model.next_event(0.0)
+    assert ship.hit_time({**p, "hit_seed": 8.0}) != ship.hit_time(p)
