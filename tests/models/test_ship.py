@@ -6,10 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import EXAMPLES
 from cosimstep.models import ship
 from cosimstep.sweep import prepare
-
-from conftest import EXAMPLES
 
 SHORT = {"t_hit": 1.0, "t_arm": 0.5}  # the hit early, so a test runs 2 s, not 600
 

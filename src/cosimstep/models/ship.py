@@ -4,9 +4,10 @@ Three electrical load zones turn their load into heat; chilled water carries it 
 The water network (``hydraulics``) is one pump A feeding a supply main with three taps, one per
 zone; the main's middle section (between taps 1 and 2) has an isolation valve at each end, and
 a standby pump B can feed tap 3 through a cross-connect valve. When that section is hit it
-leaks; the plant controller (``isolation``) sees the flow into the section exceed the flow out
-(a differential flow meter with a 50 ms lag), closes both isolation valves, opens the cross-connect and starts pump B: zones 2 and 3 are then fed backwards from
-tap 3. Zone controllers open each zone's valve as its temperature rises (PI, anti-windup).
+leaks; the plant controller (``isolation``) sees the flow into the section exceed the flow
+out (a differential flow meter with a 50 ms lag), closes both isolation valves, opens the
+cross-connect and starts pump B: zones 2 and 3 are then fed backwards from tap 3. Zone
+controllers open each zone's valve as its temperature rises (PI, anti-windup).
 
 Units: bar, kg/s, °C, kW, kJ, s. Time scales: the network about 10 ms (pipe compliance and
 water inertia), valve actuators 2 s, the chiller about 40 s, the zones several minutes.
