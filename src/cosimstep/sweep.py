@@ -354,11 +354,18 @@ def _points(params: Sequence[str | Axis], design_kind: str, samples: int | None,
 
 def check_scheduler(address: str, timeout: float = 10.0) -> None:
     """``ValueError`` naming the address unless a Dask scheduler answers there in time."""
+    import socket
+    from urllib.parse import urlsplit
+
     from distributed import Client
 
     try:
+        parts = urlsplit(address)
+        if parts.scheme == "tcp" and parts.hostname and parts.port:
+            # a refused port answers at once; Dask's client would retry until its timeout
+            socket.create_connection((parts.hostname, parts.port), timeout=timeout).close()
         Client(address, timeout=timeout).close()
-    except (OSError, TimeoutError) as exc:
+    except (OSError, TimeoutError, ValueError) as exc:
         raise ValueError(f"no Dask scheduler answers at {address} within {timeout:g} s "
                          f"({type(exc).__name__}); start one (`dask scheduler`) and give the "
                          "address it prints, or leave --scheduler out to use a local "
