@@ -643,12 +643,17 @@ def _figure_formats() -> set[str]:
 
 
 @main.command()
+@click.argument("which", required=False, default="pendulum",
+                type=click.Choice(["pendulum", "ship"]))
 @click.option("--out", default="cosimstep-demo", show_default=True,
               type=click.Path(file_okay=False), help="Folder for the results and the figure.")
-def demo(out: str) -> None:
-    """The toggled double pendulum run three ways at about equal error, in one figure."""
+def demo(which: str, out: str) -> None:
+    """The toggled double pendulum run three ways at about equal error, in one figure; or,
+    with `ship`, the ship plant's damage scenario (thesis 1.1)."""
     from cosimstep.demo import run_demo
 
+    if which == "ship":
+        _ship_demo(out)
     runs, db, figure = run_demo(out)
     click.echo(f"{'run':26s} {'status':8s} {'calls':>7s} {'max error':>10s} {'wall s':>7s}")
     for run in runs:
@@ -658,6 +663,22 @@ def demo(out: str) -> None:
     click.echo(f"status: {'ok' if all(r.result.success for r in runs) else 'failed'}   "
                f"store: {db} (3 runs)   figure: {figure}")
     sys.exit(0 if all(r.result.success for r in runs) else EXIT_FAILED)
+
+
+def _ship_demo(out: str) -> None:
+    from cosimstep.demo import run_ship_demo
+
+    r, db, figure = run_ship_demo(out)
+    trips = [e.t for e in r.events if e.kind == "isolate"]
+    hottest = max(float(r[f"zone{i}.T"].max()) for i in (1, 2, 3))
+    click.echo(f"ship plant, {r.t_end:g} s: {r.status} ({r.message}); calls "
+               + ", ".join(f"{m} {c}" for m, c in r.calls.items()))
+    if r.error is not None:
+        click.echo(f"error against the monolithic plant: {r.error.max_scaled:.2e} "
+                   "(|e| / (1 + |y|), the norm --tol bounds)")
+    click.echo(f"section isolated at t = {trips[0]:.4f} s" if trips else "no isolation")
+    click.echo(f"hottest zone: {hottest:.2f} degC   store: {db}   figure: {figure}")
+    sys.exit(0 if r.success else EXIT_FAILED)
 
 
 @main.command()
