@@ -653,7 +653,8 @@ def demo(which: str, out: str) -> None:
     from cosimstep.demo import run_demo
 
     if which == "ship":
-        _ship_demo(out)
+        _ship_demo(out)  # exits with the run's status
+        return
     runs, db, figure = run_demo(out)
     click.echo(f"{'run':26s} {'status':8s} {'calls':>7s} {'max error':>10s} {'wall s':>7s}")
     for run in runs:

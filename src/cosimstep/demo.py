@@ -112,9 +112,6 @@ def _error(result: SimulationResult) -> np.ndarray:
     return np.max(np.abs(result.values[:, cols] - ref) / (1.0 + np.abs(ref)), axis=1)
 
 
-__all__ = ["DemoRun", "plot_demo", "run_demo"]
-
-
 SHIP = "ship_plant.toml"
 SHIP_PLOTTED = ["zone1.T", "zone2.T", "zone3.T", "chiller.Ts", "network.q1", "network.q2",
                 "network.q3", "network.dq", "zone_control.v1", "zone_control.v2",
@@ -128,16 +125,18 @@ def run_ship_demo(folder: str | Path) -> tuple[SimulationResult, Path, Path]:
     each sub-model's steps with the events marked."""
     from cosimstep.plotting import plot_run
     from cosimstep.store import read_run
+    from cosimstep.sweep import prepare
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     db = folder / "ship.db"
     db.unlink(missing_ok=True)
-    from cosimstep.sweep import prepare
-
     with resources.as_file(resources.files("cosimstep") / "examples" / SHIP) as path:
         spec, controller, master = prepare(str(path), {}, {})  # the file's own run settings
     result = simulate(spec.system, spec.until, controller, master, reference=spec.reference,
                       store=db, name=spec.name)
     figure = plot_run(read_run(db), folder / "ship.png", SHIP_PLOTTED)
     return result, db, figure
+
+
+__all__ = ["DemoRun", "plot_demo", "run_demo", "run_ship_demo"]

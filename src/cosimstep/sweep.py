@@ -178,10 +178,9 @@ def step_min(result: Any) -> float | None:
     step (cut short to land on the end): what the thesis's fixed-step comparison runs at
     (4.2.7: "the smallest time step that the RKF algorithm has determined")."""
     series = [m.step_sizes for m in result.models.values()] or [result.step_sizes]
-    inner = [np.asarray(h)[:-1] for h in series if len(h) > 1]
-    inner = [h[h > 0] for h in inner]
-    return float(min(h.min() for h in inner if h.size)) if any(h.size for h in inner) \
-        else None
+    inner = np.concatenate([np.asarray(h, dtype=float)[:-1] for h in series])
+    inner = inner[inner > 0]
+    return float(inner.min()) if inner.size else None
 
 
 def prepare(system: str, point: Mapping[str, float], options: Mapping[str, Any]
