@@ -439,6 +439,12 @@ class Multirate:
             other = self.tracks[c]
             if c == k or other.t <= t0 * (1 + 1e-12) + 1e-15:
                 continue
+            if c in self.monitors:
+                # a threshold-type model's outputs depend on its inputs only through a crossing:
+                # search the corrected trajectory again (:meth:`watch`) instead of rolling it
+                # back; a crossing found before its time rolls it back then (_fire_monitor)
+                self.checked[c] = min(self.checked[c], t0)
+                continue
             overlap = min(other.t, self.tracks[k].t) - t0
             gain = other.gain if other.gain is not None else INITIAL_GAIN
             y = other.rows[-1]
@@ -497,9 +503,17 @@ class Multirate:
         if k in self.checked:  # a threshold-type model searches its inputs again from here
             self.checked[k] = min(self.checked[k], tr.t)
         self._requeue.append(k)
+        # k's trajectory changes only after t0 (before it, its re-run reads what it read the
+        # first time): its consumers go back to t0, not to the earlier point k restarts from,
+        # or in a cycle of partners each hop would go back one more step, down to the last
+        # time event
         for c in self.consumers[k]:
-            if c not in (k, origin) and self.tracks[c].t > tr.t:
-                self._rollback(c, tr.t, origin, rounds, across)
+            if c in (k, origin) or self.tracks[c].t <= t0 * (1 + 1e-12) + 1e-15:
+                continue
+            if c in self.monitors and not across:
+                self.checked[c] = min(self.checked[c], t0)  # see _resynchronize
+            else:
+                self._rollback(c, t0, origin, rounds, across)
         return True
 
     def _pieces(self, tr: Track, t0: float, h: float, actual: np.ndarray,
