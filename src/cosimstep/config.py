@@ -55,6 +55,8 @@ class ModelSection(Section):
                              "the system file")
     recipe: str | None = Field(None, description="for type = 'fmu': a built-in FMU built from "
                                "the package's C sources on first use (cosimstep.fmu.build)")
+    export: str | None = Field(None, description="for type = 'fmu': a built-in type exported "
+                               "as an FMI 2.0 FMU with pythonfmu on first use (cosimstep export)")
     interface: Literal["co-simulation", "model-exchange"] | None = Field(
         None, description="for type = 'fmu' offering both: which one runs (default: "
         "co-simulation)")
@@ -97,22 +99,21 @@ def load_system(path: str | Path, until: float | None = None,
     if path.suffix.lower() == ".ssp":
         from cosimstep.ssp import load_ssp
 
-        if overrides and any(overrides.values()):
-            raise ConfigurationError([Problem(src, "--param and --start are for TOML systems",
-                                              "set SSP values in its parameter bindings")],
-                                     src)
-        return load_ssp(path, until)
+        dotted = [f"{'--param' if t == 'parameters' else '--start'} {n}"
+                  for t, values in (overrides or {}).items() for n in values if "." in n]
+        if dotted:
+            raise ConfigurationError([Problem(d, "one sub-model's values are for TOML systems",
+                                              "set them in the SSP's parameter bindings, or "
+                                              "give a shared name (without the model)")
+                                      for d in dotted], src)
+        return load_ssp(path, until, overrides)
     raw = _single_fmu(path) if path.suffix.lower() == ".fmu" else _read_toml(path)
     problems: list[Problem] = []
     loc = lambda key: f"{src}: {key}"  # noqa: E731 - tiny local formatter
     raw = _known_top(raw, loc, problems)
     _override(raw, overrides or {}, problems)
     header = parse_header(raw, loc("[top level]"), problems)
-    changes: Changes = []
-    for i, c in enumerate(raw.get("parameter_changes", [])):
-        parsed = parse(ChangeSection, c, loc(f"parameter_changes[{i}]"), problems)
-        if parsed:
-            changes.append((parsed.t, parsed.set))
+    changes = parse_changes(raw, loc, problems)
     used: set[str] = set()
     system = _build_system(raw, header, changes, path.parent, loc, problems, used)
     if inputs is not None and not problems:
@@ -229,7 +230,7 @@ def _build_system(raw: dict[str, Any], header: HeaderSection, changes: Changes, 
     for name, body in raw.get("models", {}).items():
         where = loc(f"models.{name}")
         sec = parse(ModelSection, body, where, problems)
-        model = None if sec is None else _build_model(name, sec, header, changes, base_dir,
+        model = None if sec is None else build_model(name, sec, header, changes, base_dir,
                                                       where, problems, used)
         if model is None:
             refused.add(name)
@@ -252,16 +253,29 @@ def _build_system(raw: dict[str, Any], header: HeaderSection, changes: Changes, 
     return system
 
 
-def _build_model(name: str, sec: ModelSection, header: HeaderSection,
-                 changes: Changes, base_dir: Path, where: str,
-                 problems: list[Problem], used: set[str]) -> SubModel | None:
+def parse_changes(raw: dict[str, Any], loc: Callable[[str], str],
+                  problems: list[Problem]) -> Changes:
+    """The ``[[parameter_changes]]`` of a system file (or an SSP's cosimstep annotation)."""
+    changes: Changes = []
+    for i, c in enumerate(raw.get("parameter_changes", [])):
+        parsed = parse(ChangeSection, c, loc(f"parameter_changes[{i}]"), problems)
+        if parsed:
+            changes.append((parsed.t, parsed.set))
+    return changes
+
+
+def build_model(name: str, sec: ModelSection, header: HeaderSection,
+                changes: Changes, base_dir: Path, where: str,
+                problems: list[Problem], used: set[str]) -> SubModel | None:
+    """The sub-model of one ``[models.<name>]`` table (also an SSP component naming a built-in
+    type, :mod:`cosimstep.ssp`); ``None`` after recording its problems."""
     if sec.type == "python":
         return _python_model(sec, base_dir, where, problems)
     if sec.type == "fmu":
         return _fmu_model(name, sec, header, base_dir, where, problems, used)
     if sec.type in EVENT_KINDS:
         return _event_model(sec, where, problems)
-    for key, given in (("path", sec.path), ("recipe", sec.recipe)):
+    for key, given in (("path", sec.path), ("recipe", sec.recipe), ("export", sec.export)):
         if given is not None:
             problems.append(Problem(f"{where}.{key}", f"only used by type 'fmu', not "
                                     f"'{sec.type}'", "remove it or write type = 'fmu'"))
@@ -323,21 +337,24 @@ def _fmu_model(name: str, sec: ModelSection, header: HeaderSection, base_dir: Pa
 
     if sec.class_ is not None:
         problems.append(Problem(f"{where}.class", "not used by type 'fmu'", "remove it"))
-    fmu = resolve_fmu(sec.path, sec.recipe, base_dir, where, problems)
+    # `solver` is the exported sub-model's internal solver (default: the file's), or the
+    # integrator of a model-exchange FMU (fmu_submodel checks it)
+    exported = None if sec.export is None else (sec.export, sec.solver or header.solver)
+    fmu = resolve_fmu(sec.path, sec.recipe, base_dir, where, problems, export=exported)
     if fmu is None:
         return None
     overrides = {f"parameters.{k}": v for k, v in sec.parameters.items()}
     overrides.update({f"start.{k}": v for k, v in sec.start.items()})
-    # `solver` is for model-exchange FMUs (integrated by cosimstep); fmu_submodel checks it
     return fmu_submodel(name, fmu, overrides, where, problems, shared=header.parameters,
-                        used=used, solver=sec.solver, interface=sec.interface)
+                        used=used, solver=None if exported else sec.solver,
+                        interface=sec.interface)
 
 
 def _event_model(sec: ModelSection, where: str, problems: list[Problem]) -> SubModel | None:
     """A discrete-event kind (:mod:`cosimstep.events`) from its ``parameters`` table."""
     cls, _ = EVENT_KINDS[sec.type]
-    for key, given in (("path", sec.path), ("recipe", sec.recipe), ("class", sec.class_),
-                       ("solver", sec.solver)):
+    for key, given in (("path", sec.path), ("recipe", sec.recipe), ("export", sec.export),
+                       ("class", sec.class_), ("solver", sec.solver)):
         if given is not None:
             problems.append(Problem(f"{where}.{key}", f"not used by type '{sec.type}'",
                                     "remove it"))

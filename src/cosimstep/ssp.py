@@ -9,9 +9,13 @@ TOML system file, so every master and controller runs it.
 What is read from the SSD:
 
 - ``ssd:Component`` (FMI 2.0 co-simulation FMUs): ``name``, ``source`` (a path inside the
-  archive, or ``cosimstep:recipe:<name>`` for an FMU built from cosimstep's own C sources on
-  first use, see :mod:`cosimstep.fmu.build`) and its ``ssd:Connectors`` (name, kind, unit of
-  ``ssc:Real``);
+  archive, ``cosimstep:recipe:<name>`` for an FMU built from cosimstep's own C sources on
+  first use, see :mod:`cosimstep.fmu.build`, or ``cosimstep:export:<type>`` for a built-in
+  sub-model exported with pythonfmu on first use) and its ``ssd:Connectors`` (name, kind, unit
+  of ``ssc:Real``); a component of type ``application/x-cosimstep-model`` with source
+  ``cosimstep:model:<type>`` is one of cosimstep's built-in sub-models itself (Python, or a
+  discrete-event model), built as a ``[models.<name>]`` table of a system file would be (its
+  own ``org.cosimstep`` annotation may give its internal ``solver``);
 - ``ssd:Connection``: ``startElement.startConnector -> endElement.endConnector``, with
   ``ssc:LinearTransformation`` (factor, offset) and ``suppressUnitConversion``;
 - ``ssd:Units``: unit definitions by SI base-unit exponents, factor and offset; a value moving
@@ -23,8 +27,9 @@ What is read from the SSD:
   the values become the FMUs' parameter and start-value overrides;
 - ``ssd:DefaultExperiment``: ``stopTime`` is the run's end time;
 - an ``ssc:Annotation`` of type ``org.cosimstep`` (see :data:`ANNOTATION_TYPE`): a TOML fragment
-  with the same ``[reference]``, ``[parameters]``, ``[start]``, ``[master]`` and
-  ``[controller]`` tables as a cosimstep system file — the monolithic reference and run defaults.
+  with the same ``[reference]``, ``[parameters]``, ``[start]``, ``solver``,
+  ``[[parameter_changes]]``, ``[master]`` and ``[controller]`` tables as a cosimstep system
+  file — the monolithic reference, the built-in sub-models' shared values, the run defaults.
 
 Every problem found is collected and raised together as one
 :class:`~cosimstep.errors.ConfigurationError`.
@@ -58,8 +63,12 @@ NS = {"ssd": SSD, "ssc": SSC, "ssv": SSV, "ssm": SSM, "cosimstep": COSIMSTEP}
 ANNOTATION_TYPE = "org.cosimstep"
 SSD_NAME = "SystemStructure.ssd"
 FMU_MIME = "application/x-fmu-sharedlibrary"
-ANNOTATION_KEYS = {"name", "description", "until", "parameters", "start", "master",
-                   "controller", "reference"}
+ANNOTATION_KEYS = {"name", "description", "until", "parameters", "start", "solver",
+                   "parameter_changes", "master", "controller", "reference"}
+MODEL_MIME = "application/x-cosimstep-model"
+"""The type of a component that is one of cosimstep's built-in sub-models, not an FMU."""
+MODEL_SCHEME = "cosimstep:model:"  # its source: cosimstep:model:<type>, e.g. ship.zone2
+EXPORT_SCHEME = "cosimstep:export:"  # an FMU exported from a built-in type on first use
 _BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
 
 Affine = tuple[float, float]  # value -> a * value + b
@@ -90,6 +99,7 @@ class Component:
     connectors: dict[str, Connector]
     bindings: list[ET.Element] = field(default_factory=list)
     implementation: str | None = None  # "co-simulation" | "model-exchange" | None (any)
+    annotations: list[ET.Element] = field(default_factory=list)  # of type org.cosimstep
 
 
 @dataclass
@@ -254,9 +264,11 @@ def _read_components(system: ET.Element, where: str,
                                     f"'{elem.get('implementation')}' cannot be run",
                                     "use CoSimulation, ModelExchange or any"))
             implementation = None
-        components[name] = Component(name, elem.get("source", ""), elem.get("type"), connectors,
-                                     elem.findall("ssd:ParameterBindings/ssd:ParameterBinding",
-                                                  NS), implementation)
+        components[name] = Component(
+            name, elem.get("source", ""), elem.get("type"), connectors,
+            elem.findall("ssd:ParameterBindings/ssd:ParameterBinding", NS), implementation,
+            [a for a in elem.findall("ssd:Annotations/ssc:Annotation", NS)
+             if a.get("type") == ANNOTATION_TYPE])
     return components
 
 
@@ -407,7 +419,8 @@ def _fmu_source(comp: Component, folder: Path, where: str, problems: list[Proble
 
     if comp.type not in (None, FMU_MIME):
         problems.append(Problem(f"{where}.type", f"component type '{comp.type}' is not "
-                                "supported", f"use FMU components ({FMU_MIME})"))
+                                "supported", f"use FMUs ({FMU_MIME}) or built-in sub-models "
+                                f"({MODEL_MIME}, source {MODEL_SCHEME}<type>)"))
         return None
     if comp.source.startswith(RECIPE_SCHEME):
         return build_recipe(comp.source[len(RECIPE_SCHEME):], f"{where}.source", problems)
@@ -418,8 +431,8 @@ def _fmu_source(comp: Component, folder: Path, where: str, problems: list[Proble
     return _member(comp.source, folder, f"{where}.source", problems)
 
 
-def _annotation(annotations: list[ET.Element], where: str,
-                problems: list[Problem]) -> dict[str, Any]:
+def _annotation(annotations: list[ET.Element], where: str, problems: list[Problem],
+                keys: frozenset[str] | set[str] = ANNOTATION_KEYS) -> dict[str, Any]:
     if len(annotations) > 1:
         problems.append(Problem(where, f"{len(annotations)} annotations of type "
                                 f"'{ANNOTATION_TYPE}'", "keep one"))
@@ -438,14 +451,19 @@ def _annotation(annotations: list[ET.Element], where: str,
                                 "fix the TOML syntax"))
         return {}
     for key in raw:
-        if key not in ANNOTATION_KEYS:
+        if key not in keys:
             problems.append(Problem(f"{where}.{key}", "unknown key in the cosimstep annotation",
-                                    f"known keys: {', '.join(sorted(ANNOTATION_KEYS))}"))
-    return {k: v for k, v in raw.items() if k in ANNOTATION_KEYS}
+                                    f"known keys: {', '.join(sorted(keys))}"))
+    return {k: v for k, v in raw.items() if k in keys}
 
 
-def load_ssp(path: str | Path, until: float | None = None) -> SystemSpec:
+def load_ssp(path: str | Path, until: float | None = None,
+             overrides: dict[str, dict[str, Any]] | None = None) -> SystemSpec:
     """Read an ``.ssp`` archive into a :class:`~cosimstep.spec.SystemSpec`.
+
+    ``overrides``: shared values set from the command line, ``{"parameters": {NAME: value},
+    "start": {...}}``, on top of the cosimstep annotation's ``[parameters]`` and ``[start]``
+    (they reach the built-in sub-models and the reference, as in a system file).
 
     Raises :class:`ConfigurationError` listing every problem. The unpacked archive is removed
     when the returned system is garbage collected (or at exit), and at once on an error.
@@ -459,7 +477,7 @@ def load_ssp(path: str | Path, until: float | None = None) -> SystemSpec:
     if folder is None:
         raise ConfigurationError(problems, src)
     try:
-        spec = _load_unpacked(path, folder, until, problems)
+        spec = _load_unpacked(path, folder, until, problems, overrides or {})
     except BaseException:
         shutil.rmtree(folder, ignore_errors=True)
         raise
@@ -467,8 +485,8 @@ def load_ssp(path: str | Path, until: float | None = None) -> SystemSpec:
     return spec
 
 
-def _load_unpacked(path: Path, folder: Path, until: float | None,
-                   problems: list[Problem]) -> SystemSpec:
+def _load_unpacked(path: Path, folder: Path, until: float | None, problems: list[Problem],
+                   overrides: dict[str, dict[str, Any]]) -> SystemSpec:
     src = str(path)
     where = f"{src}: {SSD_NAME}"
     ssd = read_ssd(folder, where, problems)
@@ -478,8 +496,18 @@ def _load_unpacked(path: Path, folder: Path, until: float | None,
     if not components:
         problems.append(Problem(f"{where}: Elements", "no components",
                                 "add ssd:Component elements"))
+    aloc = f"{where}: Annotation {ANNOTATION_TYPE}"
+    settings = _annotation(ssd["annotations"], aloc, problems)
+    for table, values in overrides.items():
+        settings[table] = {**settings.get(table, {}), **values}
+    header = parse_header({k: v for k, v in settings.items()
+                           if k in ("name", "description", "until", "parameters", "start",
+                                    "solver")}, aloc, problems)
+    from cosimstep.config import parse_changes
+
+    changes = parse_changes(settings, lambda key: f"{aloc}.{key}", problems)
     system = System()
-    _add_components(system, ssd, folder, where, problems)
+    _add_components(system, ssd, folder, where, problems, (header, changes))
     for i, link in enumerate(ssd["links"]):
         loc = f"{where}: Connections[{i}] ({link.label})"
         gain_offset = _link_gain(link, components, system, ssd["units"], loc, problems)
@@ -487,11 +515,6 @@ def _load_unpacked(path: Path, folder: Path, until: float | None,
             system.connect(".".join(link.start), ".".join(link.end), *gain_offset, where=loc)
     if not problems:
         problems.extend(system.problems())
-    aloc = f"{where}: Annotation {ANNOTATION_TYPE}"
-    settings = _annotation(ssd["annotations"], aloc, problems)
-    header = parse_header({k: v for k, v in settings.items()
-                           if k in ("name", "description", "until", "parameters", "start")},
-                          aloc, problems)
     # a reference maps system outputs: not worth checking against a system already refused
     broken = any(p.where.startswith((f"{where}: Connections", f"{where}: component"))
                  for p in problems)
@@ -502,14 +525,46 @@ def _load_unpacked(path: Path, folder: Path, until: float | None,
            "cosimstep": settings}
     origin = Origin(src, lambda key: f"{aloc}.{key}", ssd["name"] or path.stem, until,
                     ssd["stop"])
-    return finish(settings, header, system, origin, problems, raw, reference=not broken)
+    return finish(settings, header, system, origin, problems, raw, changes=changes,
+                  reference=not broken)
+
+
+def _builtin(name: str, comp: Component, values: dict[str, tuple[float, str | None]],
+             shared: tuple[Any, Any], folder: Path, where: str,
+             problems: list[Problem]) -> Any:
+    """A component naming a built-in type (``cosimstep:model:<type>``) or an FMU exported from
+    one (``cosimstep:export:<type>``), built as the same ``[models.<name>]`` table of a system
+    file would be: bound values are its parameters (start values where it reads them), and the
+    annotation's shared ``parameters``, ``start``, ``solver`` and ``parameter_changes`` apply."""
+    from cosimstep.config import ModelSection, build_model
+    from cosimstep.models import REGISTRY
+
+    header, changes = shared
+    export = comp.source.startswith(EXPORT_SCHEME)
+    wanted = FMU_MIME if export else MODEL_MIME
+    if comp.type not in (None, wanted):
+        problems.append(Problem(f"{where}.type", f"a component with source '{comp.source}' "
+                                f"is of type {wanted}, not '{comp.type}'",
+                                f"write type=\"{wanted}\""))
+        return None
+    kind_name = comp.source.split(":", 2)[2]
+    kind = REGISTRY.get(kind_name)
+    starts = kind.start if kind is not None and not export else ()
+    parameters = {k: v for k, (v, _) in values.items() if k not in starts}
+    start = {k: v for k, (v, _) in values.items() if k in starts}
+    table = ({"type": "fmu", "export": kind_name} if export else {"type": kind_name})
+    # the component's own annotation may give its internal solver, as a model table's `solver`
+    own = _annotation(comp.annotations, f"{where} Annotation {ANNOTATION_TYPE}", problems,
+                      {"solver"})
+    sec = ModelSection(**table, parameters=parameters, start=start, solver=own.get("solver"))
+    return build_model(name, sec, header, changes, folder, f"{where}.source", problems, set())
 
 
 def _add_components(system: System, ssd: dict[str, Any], folder: Path, where: str,
-                    problems: list[Problem]) -> None:
-    """One FMU sub-model per component, with its parameter bindings: system-level bindings
-    name "component.variable", component-level ones the component's own variables; a
-    component's own binding wins."""
+                    problems: list[Problem], shared: tuple[Any, Any]) -> None:
+    """One sub-model per component (an FMU, or a built-in type: :func:`_builtin`), with its
+    parameter bindings: system-level bindings name "component.variable", component-level ones
+    the component's own variables; a component's own binding wins."""
     from cosimstep.fmu.resolve import fmu_submodel
 
     components: dict[str, Component] = ssd["components"]
@@ -526,16 +581,20 @@ def _add_components(system: System, ssd: dict[str, Any], folder: Path, where: st
             system_values.setdefault(comp, {})[var] = value
     for name, comp in components.items():
         loc = f"{where}: component {name}"
-        fmu = _fmu_source(comp, folder, loc, problems)
+        builtin = comp.source.startswith((MODEL_SCHEME, EXPORT_SCHEME))
+        fmu = None if builtin else _fmu_source(comp, folder, loc, problems)
         values = dict(system_values.get(name, {}))
         for i, b in enumerate(comp.bindings):
             values.update(_parameter_values(b, folder, f"{loc} ParameterBindings[{i}]",
                                             problems))
-        if fmu is None:
+        if builtin:
+            model = _builtin(name, comp, values, shared, folder, loc, problems)
+        elif fmu is None:
             continue
-        values = _in_fmu_units(values, fmu, loc, problems)
-        model = fmu_submodel(name, fmu, {f"start.{k}": v for k, (v, _) in values.items()},
-                             f"{loc} parameter", problems, interface=comp.implementation)
+        else:
+            values = _in_fmu_units(values, fmu, loc, problems)
+            model = fmu_submodel(name, fmu, {f"start.{k}": v for k, (v, _) in values.items()},
+                                 f"{loc} parameter", problems, interface=comp.implementation)
         if model is None or not _check_connectors(comp, model, loc, problems):
             continue
         try:
@@ -573,20 +632,25 @@ def _in_fmu_units(values: dict[str, tuple[float, str | None]], fmu: Path, where:
 
 
 def _check_connectors(comp: Component, model: Any, where: str, problems: list[Problem]) -> bool:
-    """Declared connectors must be FMU variables of a matching causality and unit."""
-    by_name = {v.name: v for v in model.model_description.modelVariables}
+    """Declared connectors must be variables (FMU) or ports (built-in) of a matching kind."""
+    md = getattr(model, "model_description", None)
+    if md is not None:
+        kinds = {v.name: v.causality for v in md.modelVariables}
+        owner = f"FMU variable of {model.path.name}"
+    else:
+        kinds = {**{p.name: "input" for p in model.inputs},
+                 **{p.name: "output" for p in model.outputs}}
+        owner = f"port of {comp.source}"
     ok = True
     for c in comp.connectors.values():
-        v = by_name.get(c.name)
         loc = f"{where} connector {c.name}"
-        if v is None:
-            problems.append(Problem(loc, "no FMU variable of this name",
-                                    f"connectors name variables of {model.path.name}"))
+        if c.name not in kinds:
+            problems.append(Problem(loc, f"no {owner.split(' of ')[0]} of this name",
+                                    f"connectors name the {owner}s: {', '.join(kinds)}"))
             ok = False
-            continue
-        if c.kind in ("input", "output") and v.causality != c.kind:
-            problems.append(Problem(loc, f"declared kind '{c.kind}' but the FMU variable has "
-                                    f"causality '{v.causality}'", "match the FMU's causality"))
+        elif c.kind in ("input", "output") and kinds[c.name] != c.kind:
+            problems.append(Problem(loc, f"declared kind '{c.kind}' but the {owner} is "
+                                    f"'{kinds[c.name]}'", "match its causality"))
             ok = False
     return ok
 

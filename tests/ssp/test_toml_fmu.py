@@ -122,6 +122,6 @@ type = "fmu"
                      "models.b.parameters.theta: 'theta' has causality output",
                      "models.b.start.thetaa", "models.c: cannot use FMU",
                      "not a zip archive", "unknown built-in FMU recipe 'pendulum_bar9'",
-                     "models.e: type 'fmu' needs exactly one of `path` and `recipe`"):
+                     "models.e: type 'fmu' needs exactly one of `path`, `recipe` and `export`"):
         assert expected in text, text
     assert "7 problem(s)" in text

@@ -182,6 +182,9 @@ RECIPES: dict[str, Recipe] = {
                           (C_DIR / "fmi2.h",), {"KIND": "3"}),
     "loop_sphere": Recipe(C_DIR / "loop_sphere.xml", (C_DIR / "discrete_io.c",),
                           (C_DIR / "fmi2.h",), {"KIND": "4"}),
+    # the ship plant's chiller (cosimstep.models.ship), on the generic ODE frame
+    "ship_chiller": Recipe(C_DIR / "ship_chiller.xml", (C_DIR / "ship_chiller.c",),
+                           (C_DIR / "fmi2.h", C_DIR / "fmi2_cs_ode.h")),
     # FMI 3.0 arrays: der(x) = A x + B u, y = C x + D u (model exchange and co-simulation)
     "statespace3": Recipe(C_DIR / "statespace3.xml", (C_DIR / "statespace3.c",),
                           _FMI3_HEADERS),

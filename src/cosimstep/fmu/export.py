@@ -333,8 +333,8 @@ def export_fmu(kind: str, out: str | Path, parameters: Mapping[str, float] | Non
         FMU's parameters (still settable before initialization).
     start:
         Start values by the kind's start names (``theta1``, ``omega2``...), as in a system file's
-        ``[start]``; missing ones are 0. They become the start values of the FMU's outputs and
-        inputs.
+        ``[start]``; missing ones are the kind's own (``ModelKind.start_values``), else 0.
+        They become the start values of the FMU's outputs and inputs.
     solver:
         The sub-model's internal solver, as in a system file (default
         ``{"method": "rk4", "max_dt": 1e-3}``).
@@ -354,7 +354,8 @@ def export_fmu(kind: str, out: str | Path, parameters: Mapping[str, float] | Non
     params = {**model_kind.parameters,
               **_checked(parameters, model_kind.parameters, "parameters", kind)}
     given = _checked(start, model_kind.start, "start", kind)
-    starts = {name: given.get(name, 0.0) for name in model_kind.start}
+    starts = {name: given.get(name, model_kind.start_values.get(name, 0.0))
+              for name in model_kind.start}
     solver_spec = dict(DEFAULT_SOLVER if solver is None else solver)
     try:
         make_solver(solver_spec)

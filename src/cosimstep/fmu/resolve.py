@@ -43,16 +43,65 @@ def build_recipe(recipe: str, where: str, problems: list[Problem]) -> Path | Non
         return None
 
 
+def build_export(kind: str, solver: Mapping[str, Any] | None, where: str,
+                 problems: list[Problem]) -> Path | None:
+    """A built-in Python sub-model exported as an FMU (:func:`~cosimstep.fmu.export.export_fmu`
+    with the kind's defaults and this internal ``solver``), kept in the build cache; ``None``
+    after recording a problem.
+
+    The FMU runs the installed cosimstep inside, so only its interface and configuration are
+    fixed at export: the cache key is the kind, the solver and the source of the exporter and
+    of the kind's module.
+    """
+    import hashlib
+    import inspect
+    import json
+
+    from cosimstep.fmu.build import cache_dir
+    from cosimstep.models import REGISTRY
+
+    model_kind = REGISTRY.get(kind)
+    if model_kind is None:
+        problems.append(Problem(where, f"unknown built-in type '{kind}'",
+                                "use one of `cosimstep models`, e.g. 'ship.zone1'"))
+        return None
+    try:
+        from cosimstep.fmu import export
+    except ImportError as exc:
+        problems.append(Problem(where, f"cannot export '{kind}': {exc}",
+                                'install pythonfmu: pip install "cosimstep[export]"'))
+        return None
+    digest = hashlib.sha256(json.dumps([kind, solver], sort_keys=True).encode())
+    builder = getattr(model_kind.build, "func", model_kind.build)  # through functools.partial
+    for source in (export, builder):
+        file = inspect.getsourcefile(source)
+        digest.update(Path(file).read_bytes() if file else b"")
+    target = (cache_dir() / "fmu" / f"export-{kind.replace('.', '_')}-"
+              f"{digest.hexdigest()[:16]}.fmu")
+    if target.is_file():
+        return target
+    try:
+        return export.export_fmu(kind, target, solver=solver)
+    except (ValueError, OSError) as exc:
+        problems.append(Problem(where, f"cannot export '{kind}' as an FMU: {exc}",
+                                "check the section's solver"))
+        return None
+
+
 def resolve_fmu(path: str | None, recipe: str | None, base_dir: Path, where: str,
-                problems: list[Problem]) -> Path | None:
-    """The ``.fmu`` of a TOML model section: ``path`` (relative to the file) or ``recipe``."""
-    if (path is None) == (recipe is None):
-        problems.append(Problem(where, "type 'fmu' needs exactly one of `path` and `recipe`",
-                                "write path = 'model.fmu' (relative to this file) or "
-                                "recipe = 'pendulum_bar1'"))
+                problems: list[Problem], *,
+                export: tuple[str, Mapping[str, Any] | None] | None = None) -> Path | None:
+    """The ``.fmu`` of a TOML model section: ``path`` (relative to the file), ``recipe`` (C
+    sources) or ``export`` (a built-in Python kind and its internal solver)."""
+    if sum(given is not None for given in (path, recipe, export)) != 1:
+        problems.append(Problem(where, "type 'fmu' needs exactly one of `path`, `recipe` and "
+                                "`export`", "write path = 'model.fmu' (relative to this file), "
+                                "recipe = 'pendulum_bar1' or export = 'ship.zone1'"))
         return None
     if recipe is not None:
         return build_recipe(recipe, f"{where}.recipe", problems)
+    if export is not None:
+        return build_export(*export, f"{where}.export", problems)
     assert path is not None
     file = (base_dir / path).resolve()
     if not file.is_file():

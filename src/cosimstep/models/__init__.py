@@ -7,7 +7,7 @@ can be checked before anything runs.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 
 from cosimstep.adapters.ode import InternalSolver, ParameterSchedule
@@ -26,6 +26,9 @@ class ModelKind:
     parameters: Mapping[str, float]
     start: tuple[str, ...]
     build: Builder
+    start_values: Mapping[str, float] = field(default_factory=dict)
+    """The builder's own start values, by start name (where it has any): an export of the kind
+    begins from these rather than from zero."""
 
 
 REGISTRY: dict[str, ModelKind] = {}
@@ -91,17 +94,20 @@ register(ModelKind("oscillators.spring", "the coupling spring-damper: F = k (x1 
 _SHIP = ship.default_parameters()
 register(ModelKind("ship", "the ship plant (load zones, chilled-water network, controller), "
                    "monolithic; hit at t_hit, isolation located as a state event", _SHIP,
-                   ship.START, ship.monolithic))
+                   ship.START, ship.monolithic, ship.START_VALUES))
 register(ModelKind("ship.hydraulics", "chilled-water network: pumps A and B, supply main with "
                    "an isolable middle section, zone branches (inputs v1..v3, iso, xc, pump_b, "
-                   "intact; outputs pm, q1..q3); stiff", _SHIP, ship.START, ship.hydraulics))
+                   "intact; outputs q1..q3, dq); stiff", _SHIP, ship.START, ship.hydraulics,
+                   ship.START_VALUES))
 for _i in ship.ZONES:
     register(ModelKind(f"ship.zone{_i}", f"load zone {_i}: temperature T (inputs q, Ts)", _SHIP,
-                       ship.START, partial(ship.zone, _i)))
+                       ship.START, partial(ship.zone, _i), ship.START_VALUES))
 register(ModelKind("ship.chiller", "chiller and water tank: supply temperature Ts (inputs "
-                   "T1..T3, q1..q3)", _SHIP, ship.START, ship.chiller))
+                   "T1..T3, q1..q3)", _SHIP, ship.START, ship.chiller,
+                   ship.START_VALUES))
 register(ModelKind("ship.zone_control", "zone PI controllers: valve positions v1..v3 (inputs "
-                   "T1..T3)", _SHIP, ship.START, ship.zone_control))
+                   "T1..T3)", _SHIP, ship.START, ship.zone_control,
+                   ship.START_VALUES))
 register(ModelKind("ship.damage", "damage (discrete events): intact = 1, then 0 from t_hit, or "
                    "from a Weibull lifetime when hit_scale > 0", _SHIP, ship.START, ship.damage))
 register(ModelKind("ship.isolation", "plant controller (discrete events): armed at t_arm, "

@@ -80,6 +80,7 @@ HYDRAULIC_START = {"qa": 13.8603539, "qb": 0.0, "p1": 4.06894515, "pm": 4.037791
 THERMAL_START = {"T1": 22.0, "T2": 22.0, "T3": 22.0, "Ts": 8.3}
 CONTROL_START = {"v1": 0.4, "v2": 0.4, "v3": 0.4, "I1": 0.0, "I2": 0.0, "I3": 0.0}
 START = (*HYDRAULIC_STATES, *THERMAL_START, *CONTROL_START)
+START_VALUES = {**HYDRAULIC_START, **THERMAL_START, **CONTROL_START}
 
 
 def _flow(dp: float, k: float, reg: float) -> float:
