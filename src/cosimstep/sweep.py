@@ -44,9 +44,10 @@ SCHEMA = """
 CREATE TABLE IF NOT EXISTS sweep_run(
     key TEXT PRIMARY KEY, system TEXT, point_json TEXT, options_json TEXT, status TEXT,
     message TEXT, calls_json TEXT, calls_total INTEGER, steps INTEGER, error REAL,
-    error_estimate REAL, wall_s REAL, finished REAL, store TEXT, rmse REAL, step_min REAL);
+    error_estimate REAL, wall_s REAL, finished REAL, store TEXT, rmse REAL, step_min REAL,
+    extremes_json TEXT);
 """
-ADDED_COLUMNS = {"store": "TEXT", "rmse": "REAL", "step_min": "REAL"}
+ADDED_COLUMNS = {"store": "TEXT", "rmse": "REAL", "step_min": "REAL", "extremes_json": "TEXT"}
 """Columns a table written by an earlier version may lack (added on open)."""
 
 
@@ -157,7 +158,8 @@ def run_point(system: str, point: Mapping[str, float], options: Mapping[str, Any
                        calls_total=result.calls_total, steps=result.steps_accepted,
                        error=None if result.error is None else result.error.max_scaled,
                        rmse=None if result.error is None else result.error.rmse,
-                       error_estimate=result.error_estimate, step_min=step_min(result))
+                       error_estimate=result.error_estimate, step_min=step_min(result),
+                       extremes=extremes(result))
     except Exception as exc:  # a bad point must not end the sweep
         last = traceback.extract_tb(exc.__traceback__)[-1:]
         where = f" ({last[0].filename}:{last[0].lineno})" if last else ""
@@ -170,7 +172,19 @@ def _failed(point: Mapping[str, float], message: str) -> dict[str, Any]:
     """The summary of a run that produced nothing."""
     return {"point": dict(point), "status": "failed", "message": message, "calls": {},
             "calls_total": 0, "steps": 0, "error": None, "rmse": None, "error_estimate": None,
-            "step_min": None, "wall_s": float("nan"), "store": None}
+            "step_min": None, "extremes": {}, "wall_s": float("nan"), "store": None}
+
+
+def extremes(result: Any) -> dict[str, list[float]]:
+    """Each real output's ``[min, max]`` over the run's points: what a Monte-Carlo study of a
+    peak (the hottest zone, the largest force) needs, without keeping every trajectory."""
+    values = np.asarray(result.values, dtype=float)
+    if values.size == 0:
+        return {}
+    with np.errstate(invalid="ignore"):
+        low, high = np.nanmin(values, axis=0), np.nanmax(values, axis=0)
+    return {name: [float(lo), float(hi)] for name, lo, hi in zip(result.names, low, high)
+            if np.isfinite(lo) and np.isfinite(hi)}
 
 
 def step_min(result: Any) -> float | None:
@@ -247,37 +261,43 @@ class SweepTable:
         self._db.execute(
             "INSERT OR REPLACE INTO sweep_run (key, system, point_json, options_json, status, "
             "message, calls_json, calls_total, steps, error, error_estimate, wall_s, finished, "
-            "store, rmse, step_min) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            "store, rmse, step_min, extremes_json) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             (key, system, json.dumps(summary["point"], sort_keys=True),
              json.dumps(dict(options), sort_keys=True), summary["status"], summary["message"],
              json.dumps(summary["calls"], sort_keys=True), summary["calls_total"],
              summary["steps"], summary["error"], summary["error_estimate"], summary["wall_s"],
-             time.time(), summary.get("store"), summary.get("rmse"), summary.get("step_min")))
+             time.time(), summary.get("store"), summary.get("rmse"), summary.get("step_min"),
+             json.dumps(summary.get("extremes") or {}, sort_keys=True)))
         self._db.commit()
 
     def frame(self, keys: Sequence[str] | None = None) -> Any:
         """The runs (those of ``keys``, in that order) as a pandas DataFrame: one column per
         swept name, then status, message, calls per sub-model (``calls.NAME``), calls_total,
-        steps, error, rmse, error_estimate, step_min, wall_s, store, and the sweep's run
-        options as a label (``options``: runs of sweeps with other options share a file)."""
+        steps, error, rmse, error_estimate, step_min, wall_s, store, the sweep's run
+        options as a label (``options``: runs of sweeps with other options share a file), and
+        each output's extremes over the run (``min.NAME``, ``max.NAME``)."""
         import pandas as pd
 
         rows = {r[0]: r for r in self._db.execute(
             "SELECT key, point_json, status, message, calls_json, calls_total, steps, error, "
-            "error_estimate, wall_s, store, options_json, rmse, step_min FROM sweep_run")}
+            "error_estimate, wall_s, store, options_json, rmse, step_min, extremes_json "
+            "FROM sweep_run")}
         order = list(keys) if keys is not None else sorted(rows)
         records = []
         for key in order:
             if key not in rows:
                 continue
             _, point, status, message, calls, total, steps, error, estimate, wall, store, \
-                options, rmse, smallest = rows[key]
+                options, rmse, smallest, ranges = rows[key]
             record = dict(json.loads(point))
             record.update(status=status, message=message)
             record.update({f"calls.{m}": c for m, c in json.loads(calls).items()})
             record.update(calls_total=total, steps=steps, error=error, rmse=rmse,
                           error_estimate=estimate, step_min=smallest, wall_s=wall, store=store,
                           options=_label(json.loads(options)))
+            for name, (low, high) in json.loads(ranges or "{}").items():
+                record[f"min.{name}"], record[f"max.{name}"] = low, high
             records.append(record)
         return pd.DataFrame.from_records(records)
 

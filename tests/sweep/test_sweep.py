@@ -173,6 +173,9 @@ def test_traces_are_kept_one_store_per_run(tmp_path, examples) -> None:
         stored = cosimstep.read_run(row["store"])
         assert len(stored.times) == 101 and stored.times[-1] == pytest.approx(1.0)
         assert "bar2.theta" in stored.names
+        # the summary's extremes are those of the stored trajectory
+        theta = stored.values[:, stored.names.index("bar2.theta")]
+        assert (row["min.bar2.theta"], row["max.bar2.theta"]) == (theta.min(), theta.max())
     theta2 = {}
     for _, row in frame.iterrows():
         stored = cosimstep.read_run(row["store"])
