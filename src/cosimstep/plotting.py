@@ -106,8 +106,10 @@ def _title(run: StoredRun) -> str:
     """System, status and call count, plus the error against the reference when one was kept."""
     err = run.summary.get("error")
     title = f"{run.system} — {run.status}, {run.summary.get('calls_total', '?')} calls"
-    if err:
-        title += f", max error {err['max_abs']:.2e} vs monolithic"
+    if err:  # in the norm --tol bounds, as `run` reports it (older stores: absolute)
+        scaled = err.get("max_scaled")
+        title += (f", max error {scaled:.2e} (|e| / (1 + |y|)) vs monolithic" if scaled
+                  is not None else f", max |error| {err['max_abs']:.2e} vs monolithic")
     return title
 
 
