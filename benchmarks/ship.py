@@ -52,9 +52,9 @@ def _runs(out: str, points: list[dict], workers: int = 2, **options) -> tuple:
     return frame, time.perf_counter() - start
 
 
-def _fixed_at(error: float, fixed) -> float | None:
-    """Calls of the fixed-step line at ``error`` (log–log between bracketing runs)."""
-    ok = fixed[(fixed["status"] == "ok") & fixed["error"].notna()].sort_values("calls_total")
+def _calls_at(error: float, line) -> float | None:
+    """Calls of a work–precision line at ``error`` (log–log between bracketing runs)."""
+    ok = line[(line["status"] == "ok") & line["error"].notna()].sort_values("calls_total")
     calls, errors = ok["calls_total"].to_numpy(float), ok["error"].to_numpy(float)
     for i in range(len(calls) - 1):
         lo, hi = sorted((errors[i], errors[i + 1]))
@@ -71,24 +71,33 @@ def work_precision() -> list[str]:
              "reference (Radau), at the run's points. Calls per sub-model in the order "
              f"{' / '.join(names)}.", "",
              "| master | tol or step | status | calls | calls per sub-model | error | err/tol "
-             "| fixed calls at equal error | wall s |", "|---|---|---|---|---|---|---|---|---|"]
+             "| fixed calls at equal error | pc calls at equal error | wall s |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     fixed, _ = _runs("ship_wp.db", [{"step": h} for h in STEPS], master="gauss-seidel",
                      controller="fixed")
+    lines_of = {m: _runs("ship_wp.db", [{"tol": t} for t in TOLS], master=m)[0]
+                for m in ("gauss-seidel", "multirate")}
     rows = []
-    for master in ("gauss-seidel", "multirate"):
-        frame, _ = _runs("ship_wp.db", [{"tol": t} for t in TOLS], master=master)
+    for master, frame in lines_of.items():
         for tol, (_, r) in zip(TOLS, frame.iterrows()):
             label = "pc (Gauss–Seidel)" if master == "gauss-seidel" else "multirate"
-            equal = _fixed_at(r["error"], fixed) if r["status"] == "ok" else None
-            rows.append((label, f"{tol:g}", r, r["error"] / tol if r["error"] else None, equal))
+            ok = r["status"] == "ok"
+            rows.append((label, f"{tol:g}", r, r["error"] / tol if r["error"] else None,
+                         _calls_at(r["error"], fixed) if ok else None,
+                         _calls_at(r["error"], lines_of["gauss-seidel"])
+                         if ok and master == "multirate" else None))
     for h, (_, r) in zip(STEPS, fixed.iterrows()):
-        rows.append(("fixed (Gauss–Seidel)", f"h = {h:g} s", r, None, None))
-    for label, what, r, ratio, equal in rows:
+        rows.append(("fixed (Gauss–Seidel)", f"h = {h:g} s", r, None, None, None))
+    for label, what, r, ratio, fixed_calls, pc_calls in rows:
         per = " / ".join(str(int(r.get(f"calls.{n}", 0) or 0)) for n in names)
         lines.append(f"| {label} | {what} | {r['status']} | {int(r['calls_total'])} | {per} | "
-                     f"{r['error']:.2e} | {'—' if ratio is None else f'{ratio:.2g}'} | "
-                     f"{'—' if equal is None else f'{equal:.0f}'} | {r['wall_s']:.1f} |")
+                     f"{_num(r['error'], '.2e')} | {_num(ratio, '.2g')} | {_num(fixed_calls, '.0f')} | "
+                     f"{_num(pc_calls, '.0f')} | {r['wall_s']:.1f} |")
     return lines
+
+
+def _num(value: float | None, spec: str) -> str:
+    return "—" if value is None or not math.isfinite(value) else format(value, spec)
 
 
 def _peaks(frame) -> np.ndarray:
