@@ -557,7 +557,7 @@ def _builtin(name: str, comp: Component, values: dict[str, tuple[float, str | No
     own = _annotation(comp.annotations, f"{where} Annotation {ANNOTATION_TYPE}", problems,
                       {"solver"})
     sec = ModelSection(**table, parameters=parameters, start=start, solver=own.get("solver"))
-    return build_model(name, sec, header, changes, folder, f"{where}.source", problems, set())
+    return build_model(name, sec, header, changes, folder, where, problems, set())
 
 
 def _add_components(system: System, ssd: dict[str, Any], folder: Path, where: str,

@@ -268,3 +268,71 @@ def test_the_component_implementation_chooses_the_interface(tmp_path: Path,
     assert load("").system.models["ss"].kind == "CS"
     with pytest.raises(cosimstep.ConfigurationError, match="implementation 'ScheduledExecution'"):
         load("ScheduledExecution")
+
+
+# -- built-in sub-models as components ----------------------------------------------------------
+
+def _builtin(name: str, kind: str, bound: dict[str, float], connectors: str = "",
+             mime: str = "application/x-cosimstep-model") -> str:
+    params = "".join(f'<ssv:Parameter name="{k}"><ssv:Real value="{v}"/></ssv:Parameter>'
+                     for k, v in bound.items())
+    return (f'<ssd:Component name="{name}" type="{mime}" source="cosimstep:model:{kind}">'
+            f"<ssd:Connectors>{connectors}</ssd:Connectors><ssd:ParameterBindings>"
+            '<ssd:ParameterBinding><ssd:ParameterValues><ssv:ParameterSet version="1.0" '
+            f'name="s"><ssv:Parameters>{params}</ssv:Parameters></ssv:ParameterSet>'
+            "</ssd:ParameterValues></ssd:ParameterBinding></ssd:ParameterBindings>"
+            "</ssd:Component>")
+
+
+SETTINGS = """<ssd:Annotations><ssc:Annotation type="org.cosimstep"><cosimstep:Settings>
+solver = { method = "rk4", max_dt = 1e-4 }
+[parameters]
+lam = 100.0
+[start]
+u = 0.9000099990001
+v = -9.99900009999
+w = 1000.0
+</cosimstep:Settings></ssc:Annotation></ssd:Annotations>"""
+
+
+def _linear(tmp_path: Path, fast: str, slow: str) -> Path:
+    body = (HEAD + fast + slow + "</ssd:Elements><ssd:Connections>"
+            + connection("fast.u", "slow.u") + connection("slow.w", "fast.w")
+            + "</ssd:Connections>" + SETTINGS + "</ssd:System></ssd:SystemStructureDescription>")
+    return write_ssp(tmp_path / "linear.ssp", body, {})
+
+
+def test_built_in_components_run_as_their_toml_tables(tmp_path: Path, examples: Path) -> None:
+    # the annotation's shared lam and start values, and a bound value (slow's own lam, unused
+    # by its equation but a parameter of its kind), reach the sub-models as in the TOML file
+    ssp = _linear(tmp_path, _builtin("fast", "linear_coupled.fast", {},
+                                     '<ssd:Connector name="u" kind="output"/>'
+                                     '<ssd:Connector name="w" kind="input"/>'),
+                  _builtin("slow", "linear_coupled.slow", {"lam": 100.0}))
+    spec = cosimstep.load_system(ssp)
+    toml = cosimstep.load_system(examples / "linear_coupled.toml")
+    a = cosimstep.simulate(spec.system, 0.2, cosimstep.Fixed(1e-3), MASTER)
+    b = cosimstep.simulate(toml.system, 0.2, cosimstep.Fixed(1e-3), MASTER)
+    assert a.success and a.names == b.names
+    np.testing.assert_array_equal(a.values, b.values)
+    # a shared value from the command line reaches them too
+    other = cosimstep.load_system(ssp, overrides={"parameters": {"lam": 50.0}})
+    c = cosimstep.simulate(other.system, 0.2, cosimstep.Fixed(1e-3), MASTER)
+    assert not np.allclose(c.values, a.values)
+
+
+def test_bad_built_in_components_are_all_listed(tmp_path: Path) -> None:
+    ssp = _linear(tmp_path, _builtin("fast", "linear_coupled.fastest", {}),
+                  _builtin("slow", "linear_coupled.slow", {"tau": 1.0},
+                           '<ssd:Connector name="x" kind="input"/>'))
+    code, out = run_exit(ssp)
+    assert code == 2, out
+    for expected in ("component fast.type: unknown model type 'linear_coupled.fastest'",
+                     "component slow.parameters.tau: 'linear_coupled.slow' has no parameter",
+                     "'slow' has no connector 'u' (fix: its connectors: x)"):
+        assert expected in out, out
+    wrong = _linear(tmp_path, _builtin("fast", "linear_coupled.fast", {},
+                                       mime="application/x-fmu-sharedlibrary"),
+                    _builtin("slow", "linear_coupled.slow", {}))
+    code, out = run_exit(wrong)
+    assert code == 2 and "is of type application/x-cosimstep-model" in out, out
