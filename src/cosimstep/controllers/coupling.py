@@ -91,8 +91,11 @@ class _PolicyController(Controller):
                 error: np.ndarray, values: np.ndarray, k: float, names: list[str]) -> Attempt:
         """Accept or reject (restoring the models to ``t``) and propose the next step."""
         ratio, i = self.policy.ratio(error, values, h)
+        if ratio > 1.0 and self.policy.noise(t, h, error, values):
+            ratio, i = self.policy.ratio(error, values, h)  # above the floor just found
         accepted = ratio <= 1.0
         if accepted:
+            self.policy.accepted_step()
             self._account(error, values, h)
         k = (k if self.policy.global_error else k + 1) + self.policy.extra_power
         h_next = self.policy.next_step(h, ratio, k, accepted)
