@@ -146,8 +146,9 @@ def run_point(system: str, point: Mapping[str, float], options: Mapping[str, Any
     """One run of the sweep; never raises: any failure is a ``failed`` summary.
 
     ``options``: ``master``, ``extrapolation``, ``controller``, ``tol``, ``step``, ``until``
-    and ``coupling`` as on the command line (``None``: the file's); the point's run options
-    come on top. ``store``: an SQLite file for the run's whole trajectory (``None``: none).
+    and ``coupling`` as on the command line (``None``: the file's), and ``controller_options``
+    (a dict, as ``run --opt``); the point's run options come on top. ``store``: an SQLite
+    file for the run's whole trajectory (``None``: none).
     """
     start = time.perf_counter()
     summary = _failed(point, "")
@@ -219,6 +220,7 @@ def prepare(system: str, point: Mapping[str, float], options: Mapping[str, Any]
         master = dataclasses.replace(master, coupling=opts["coupling"])
     settings = merged_settings(spec.controller, opts.get("controller"), opts.get("step"),
                                opts.get("tol"))
+    settings.update(opts.get("controller_options") or {})  # as `run --opt KEY=VALUE`
     name = settings.pop("name", None)
     controller = make_controller(name, settings.pop("step", None), settings.pop("tol", None),
                                  **settings)
