@@ -50,6 +50,7 @@ from typing import Any
 
 from cosimstep.archive import escapes, new_folder, size_problems
 from cosimstep.errors import ConfigurationError, Problem
+from cosimstep.model_tables import ModelSection, build_model, parse_changes
 from cosimstep.spec import Origin, SystemSpec, finish, parse_header
 from cosimstep.system import System
 from cosimstep.units import UnitError, conversion
@@ -503,8 +504,6 @@ def _load_unpacked(path: Path, folder: Path, until: float | None, problems: list
     header = parse_header({k: v for k, v in settings.items()
                            if k in ("name", "description", "until", "parameters", "start",
                                     "solver")}, aloc, problems)
-    from cosimstep.config import parse_changes
-
     changes = parse_changes(settings, lambda key: f"{aloc}.{key}", problems)
     system = System()
     _add_components(system, ssd, folder, where, problems, (header, changes))
@@ -536,7 +535,6 @@ def _builtin(name: str, comp: Component, values: dict[str, tuple[float, str | No
     one (``cosimstep:export:<type>``), built as the same ``[models.<name>]`` table of a system
     file would be: bound values are its parameters (start values where it reads them), and the
     annotation's shared ``parameters``, ``start``, ``solver`` and ``parameter_changes`` apply."""
-    from cosimstep.config import ModelSection, build_model
     from cosimstep.models import REGISTRY
 
     header, changes = shared
