@@ -138,7 +138,8 @@ def _build_description(model_identifier: str, sources: list[str]) -> str:
 
 def _pendulum_bar(bar: int) -> Recipe:
     return Recipe(C_DIR / f"pendulum_bar{bar}.xml", (C_DIR / "pendulum_bar.c",),
-                  (C_DIR / "fmi2.h", C_DIR / "pendulum_physics.h"), {"BAR": str(bar)})
+                  (C_DIR / "fmi2.h", C_DIR / "fmi2_cs_ode.h", C_DIR / "pendulum_physics.h"),
+                  {"BAR": str(bar)})
 
 
 def _pendulum_bar_fmi3(bar: int) -> Recipe:

@@ -125,6 +125,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         } else {
             memcpy(inst->s.v, START, sizeof START);
             inst->mode = ODE_INSTANTIATED;
+            ode_log(inst, fmi2OK, "instantiated, GUID %s", MODEL_GUID);
             return inst;
         }
         functions->freeMemory(inst->name);
@@ -383,15 +384,19 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     OdeInstance *inst = ode(c);
     OdeState *s = &inst->s;
-    const double a = currentCommunicationPoint, h = communicationStepSize;
+    /* h as the step's end minus its start (as OdeSubModel takes it); t0: where the input
+       polynomial was set (the FMU's time, within 1e-9 of a) */
+    const double a = currentCommunicationPoint, b = a + communicationStepSize, h = b - a;
+    const double t0 = s->time;
     double x[N_X], xs[N_X], k1[N_X], k2[N_X], k3[N_X], k4[N_X], steps, dt;
     long n;
     (void)noSetFMUStatePriorToCurrentPoint;
     if (inst->mode != ODE_STEP) return ODE_FAIL(inst, "fmi2DoStep outside step mode");
-    if (!(h > 0.0)) return ODE_FAIL(inst, "fmi2DoStep: step size %g is not positive", h);
+    if (!(communicationStepSize > 0.0))
+        return ODE_FAIL(inst, "fmi2DoStep: step size %g is not positive", communicationStepSize);
     if (fabs(a - s->time) > 1e-9 * fmax(1.0, fabs(s->time)))
-        return ODE_FAIL(inst, "fmi2DoStep: communication point %.17g is not the FMU time %.17g",
-                        a, s->time);
+        return ODE_FAIL(inst, "fmi2DoStep: communication point %.17g differs from the FMU time "
+                        "%.17g", a, s->time);
     steps = ceil(h / s->v[ODE_MAX_DT] - 1e-9);
     if (!(steps <= ODE_MAX_SUBSTEPS))
         return ODE_FAIL(inst, "fmi2DoStep: a step of %g needs more than %g steps of max_dt = %g",
@@ -401,13 +406,13 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
     memcpy(x, s->v, sizeof x);
     for (long i = 0; i < n; i++) {
         const double t = a + i * dt;
-        ode_derivative(s, a, t, x, k1);
+        ode_derivative(s, t0, t, x, k1);
         for (int j = 0; j < N_X; j++) xs[j] = x[j] + 0.5 * dt * k1[j];
-        ode_derivative(s, a, t + 0.5 * dt, xs, k2);
+        ode_derivative(s, t0, t + 0.5 * dt, xs, k2);
         for (int j = 0; j < N_X; j++) xs[j] = x[j] + 0.5 * dt * k2[j];
-        ode_derivative(s, a, t + 0.5 * dt, xs, k3);
+        ode_derivative(s, t0, t + 0.5 * dt, xs, k3);
         for (int j = 0; j < N_X; j++) xs[j] = x[j] + dt * k3[j];
-        ode_derivative(s, a, t + dt, xs, k4);
+        ode_derivative(s, t0, t + dt, xs, k4);
         for (int j = 0; j < N_X; j++)
             x[j] = x[j] + dt / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]);
     }
@@ -416,8 +421,8 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
             return ODE_FAIL(inst, "fmi2DoStep: %s is not finite after the step from t = %g",
                             VR_NAMES[j], a);
     memcpy(s->v, x, sizeof x);
-    ode_shift_inputs(s, h);
-    s->time = a + h;
+    ode_shift_inputs(s, b - t0); /* as OdeSubModel: the end time minus the start */
+    s->time = b;
     return fmi2OK;
 }
 
