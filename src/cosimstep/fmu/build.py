@@ -136,10 +136,13 @@ def _build_description(model_identifier: str, sources: list[str]) -> str:
             "</fmiBuildDescription>\n")
 
 
+_CS_ODE_HEADERS = (C_DIR / "fmi2.h", C_DIR / "fmi2_cs_ode.h", C_DIR / "fmi2_reals_only.h")
+"""Headers of an FMU on the generic FMI 2.0 co-simulation ODE frame."""
+
+
 def _pendulum_bar(bar: int) -> Recipe:
     return Recipe(C_DIR / f"pendulum_bar{bar}.xml", (C_DIR / "pendulum_bar.c",),
-                  (C_DIR / "fmi2.h", C_DIR / "fmi2_cs_ode.h", C_DIR / "pendulum_physics.h"),
-                  {"BAR": str(bar)})
+                  (*_CS_ODE_HEADERS, C_DIR / "pendulum_physics.h"), {"BAR": str(bar)})
 
 
 def _pendulum_bar_fmi3(bar: int) -> Recipe:
@@ -148,7 +151,8 @@ def _pendulum_bar_fmi3(bar: int) -> Recipe:
                   {"BAR": str(bar)})
 
 
-_ME_HEADERS = (C_DIR / "fmi2.h", C_DIR / "fmi2me.h", C_DIR / "fmi2_me_frame.h")
+_ME_HEADERS = (C_DIR / "fmi2.h", C_DIR / "fmi2me.h", C_DIR / "fmi2_me_frame.h",
+               C_DIR / "fmi2_reals_only.h")
 _FMI3_HEADERS = (C_DIR / "fmi3.h", C_DIR / "fmi3_model.h", C_DIR / "fmi3_frame.h",
                  C_DIR / "fmi3_unsupported.h")
 
@@ -185,7 +189,7 @@ RECIPES: dict[str, Recipe] = {
                           (C_DIR / "fmi2.h",), {"KIND": "4"}),
     # the ship plant's chiller (cosimstep.models.ship), on the generic ODE frame
     "ship_chiller": Recipe(C_DIR / "ship_chiller.xml", (C_DIR / "ship_chiller.c",),
-                           (C_DIR / "fmi2.h", C_DIR / "fmi2_cs_ode.h")),
+                           _CS_ODE_HEADERS),
     # FMI 3.0 arrays: der(x) = A x + B u, y = C x + D u (model exchange and co-simulation)
     "statespace3": Recipe(C_DIR / "statespace3.xml", (C_DIR / "statespace3.c",),
                           _FMI3_HEADERS),

@@ -181,43 +181,8 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     return fmi2OK;
 }
 
-#define NO_VARIABLES(fname, type)                                                          \
-    do {                                                                                   \
-        (void)vr;                                                                          \
-        (void)value;                                                                       \
-        if (nvr) return FAIL(as_instance(c), fname ": this FMU has no " type " variables"); \
-        return fmi2OK;                                                                     \
-    } while (0)
-
-fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          fmi2Integer value[]) {
-    NO_VARIABLES("fmi2GetInteger", "Integer");
-}
-
-fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          fmi2Boolean value[]) {
-    NO_VARIABLES("fmi2GetBoolean", "Boolean");
-}
-
-fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                         fmi2String value[]) {
-    NO_VARIABLES("fmi2GetString", "String");
-}
-
-fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          const fmi2Integer value[]) {
-    NO_VARIABLES("fmi2SetInteger", "Integer");
-}
-
-fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                          const fmi2Boolean value[]) {
-    NO_VARIABLES("fmi2SetBoolean", "Boolean");
-}
-
-fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                         const fmi2String value[]) {
-    NO_VARIABLES("fmi2SetString", "String");
-}
+#define REALS_ONLY_FAIL(c, msg) FAIL(as_instance(c), msg)
+#include "fmi2_reals_only.h"
 
 /* ---- FMU state ---------------------------------------------------------------------------- */
 
