@@ -48,6 +48,9 @@ class _Context:
         self.consumed = master.consumed
         self.held = master.held
         self.discrete = master.discrete
+        system = master.system
+        self.readers = [(np.asarray(src, dtype=int), sl)
+                        for src, sl in zip(system.src, system.output_slices)]
         self._segment = 0  # index of the first point after the last time event
         self.first_token: Any = None  # the first state saved during the current attempt
 
@@ -194,7 +197,7 @@ class ControllerLoop(_Loop):
         t = self.t = landing if abs(clock.value - landing) <= 1e-9 * h else clock.value
         at_event = t == event and t < self.until
         if at_event:
-            controller.event(t)
+            self._restart(controller.event(t))
         ctx.push(t, attempt.y)
         if at_event:
             ctx.restart()
@@ -298,8 +301,13 @@ class ControllerLoop(_Loop):
         values, and extrapolation starts again from it (a jump is not a trend)."""
         self.ctx.rows[-1] = self.ctx.rows[-1].copy()
         self.ctx.rows[-1][columns] = values
-        self.controller.event(self.t)
+        self._restart(self.controller.event(self.t))
         self.ctx.restart()
+
+    def _restart(self, h: float | None) -> None:
+        """Go on from an event with the step the controller chose (``None``: as proposed)."""
+        if h is not None:
+            self._h = min(self._h, h)
 
     def _failed_trial(self, exc: SubModelError, t: float, h: float) -> Attempt:
         """A trial step a sub-model could not take (it raised, or returned NaN or inf) is a

@@ -69,7 +69,22 @@ class _PolicyController(Controller):
         self.probe.reset(t0, t_end)
         self.error_estimate = 0.0
         h0 = self.h0 if self.h0 is not None else 1e-4 * (t_end - t0)
-        return min(max(h0, self.policy.hmin), self.policy.hmax)
+        self._restart = min(max(h0, self.policy.hmin), self.policy.hmax)
+        return self._restart
+
+    def event(self, t: float) -> float | None:
+        """With predictive control (``StepPolicy.predictive``), start again from the run's
+        first step: the error model the control has learnt holds for the dynamics before the
+        event, not after it. A step carried across the pump failure of the pump-failure
+        example was accepted on an estimate that could not see the transient inside it
+        (extrapolation restarts there at order 0) and left 35 × tol at tol 1e-3. The PI
+        control keeps its step: it climbs back from a restart so slowly that the same cell
+        became 0.006 × tol (docs/concepts.md, "Step control that follows a settling
+        system")."""
+        if not self.policy.predictive:
+            return None
+        self.policy.restart()
+        return self._restart
 
     def _account(self, error: np.ndarray, values: np.ndarray, h: float) -> None:
         """Add an accepted step's local error estimate to the run's global error estimate.
@@ -125,8 +140,9 @@ class Defect(_PolicyController):
         self._gain, self._since = None, 0
         return super().initial_step(t0, t_end)
 
-    def event(self, t: float) -> None:
+    def event(self, t: float) -> float | None:
         self._since = max(self._since, self.calibrate_every)  # dynamics changed: re-measure
+        return super().event(t)
 
     def attempt(self, ctx: StepContext, t: float, h: float) -> Attempt:
         q = _effective_order(ctx)
@@ -231,20 +247,30 @@ class PredictorCorrector(_PolicyController):
         return attempt
 
     def _input_ratio(self, ctx: StepContext, t: float, h: float, q: int, y_p: np.ndarray,
-                     y_c: np.ndarray) -> float:
-        """‖u_best − u_c‖ / ‖u_p − u_c‖ over the inputs (scaled, mean over the step).
+                     y_c: np.ndarray) -> np.ndarray:
+        """Per output: ‖u_best − u_c‖ / ‖u_p − u_c‖ over the inputs of the sub-model that owns it
+        (scaled, mean over the step).
 
         The curves are those the master used: a predicted output is extrapolated (degree ``q``)
         by the predictor and interpolated through the predictor's new value (``q + 1``) by the
         corrector; an output a receiver reads fresh (Gauss–Seidel) is interpolated through the
         new value of the same pass.
+
+        Why per receiver: the experiment measured how far each sub-model's outputs moved under
+        the input change *it* saw, so only its own inputs' ratio scales that response. One ratio
+        for the whole system (largest left over largest moved, over every input) lets the
+        inputs that moved most — typically a fast partner's — set the ratio for a receiver that
+        reads only slow inputs: on the double pendulum with a short light lower bar, the lower
+        bar's error was then estimated 460× too low and ``pc`` delivered 15–29× tol
+        (docs/concepts.md, "One input ratio per receiver").
         """
+        ratio = np.ones(len(ctx.names))
         # a discrete output is held by every receiver in both runs: it moves no one
         cols = np.flatnonzero(ctx.consumed & ~ctx.discrete)
         if cols.size == 0:
-            return 0.0
+            return ratio * 0.0
         if len(ctx.times) < q + 2:
-            return 1.0  # no older point to judge the corrector by: count the predictor's error
+            return ratio  # no older point to judge the corrector by: count the predictor's error
         fresh = ~ctx.predicted[cols]
         times, hist = list(ctx.times), ctx.history[:, cols]
         offsets = h * _NODES
@@ -261,9 +287,18 @@ class PredictorCorrector(_PolicyController):
         u_c = np.where(fresh, curve(q + 1, y_c), curve(q + 1, y_p))
         u_best = curve(q + 2, y_c)
         scale = self.policy.scale(hist[-1])
-        moved = float(np.max(np.mean(np.abs(u_p - u_c), axis=0) / scale))
-        left = float(np.max(np.mean(np.abs(u_best - u_c), axis=0) / scale))
-        return left / moved if moved > 0 else 1.0
+        moved = np.zeros(len(ratio))
+        left = np.zeros(len(ratio))
+        moved[cols] = np.mean(np.abs(u_p - u_c), axis=0) / scale
+        left[cols] = np.mean(np.abs(u_best - u_c), axis=0) / scale
+        for src, own in ctx.readers:
+            if src.size == 0:
+                ratio[own] = 0.0  # reads nothing: no coupling error of its own
+                continue
+            m = float(np.max(moved[src]))
+            if m > 0:
+                ratio[own] = float(np.max(left[src])) / m
+        return ratio
 
 
 _NODES = np.array([0.25, 0.5, 0.75, 1.0])  # where input curves are compared over a step

@@ -102,8 +102,9 @@ class Switching(Controller):
         self._fixed, self._recent, self.switches = None, [], 0
         return self._inner.initial_step(t0, t_end)
 
-    def event(self, t: float) -> None:
-        self._inner.event(t)
+    def event(self, t: float) -> float | None:
+        restart = self._inner.event(t)
+        return restart if self._fixed is None else None  # a fixed stretch keeps its step
 
     def attempt(self, ctx: StepContext, t: float, h: float) -> Attempt:
         if self._fixed is None:
@@ -160,8 +161,8 @@ class AdaptiveTolerance(Controller):
         self._mean, self._n = None, 0
         return self._inner.initial_step(t0, t_end)
 
-    def event(self, t: float) -> None:
-        self._inner.event(t)
+    def event(self, t: float) -> float | None:
+        return self._inner.event(t)
 
     def _set_tol(self, tol: float) -> None:
         policy = getattr(self._inner, "policy", None)
