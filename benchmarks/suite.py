@@ -75,7 +75,7 @@ def run(job: dict) -> dict:
             controller = Fixed(problem.until / job["n"])
             master = MasterOptions("gauss-seidel", 2)
         else:
-            controller = make_controller("pc", None, job["tol"])
+            controller = make_controller("pc", None, job["tol"], **job.get("options", {}))
             master = MasterOptions(MASTERS[job["kind"]], 2)
         r = simulate(system, problem.until, controller, master, reference=reference)
         estimate = getattr(r, "error_estimate", None)
@@ -247,12 +247,28 @@ def sources(problems: list[str]) -> list[str]:
     return out
 
 
+def _option(text: str) -> tuple[str, object]:
+    """``KEY=VALUE`` with a TOML-like value (true/false, a number, else the text)."""
+    key, _, value = text.partition("=")
+    lowered = value.strip().lower()
+    if lowered in ("true", "false"):
+        return key.strip(), lowered == "true"
+    try:
+        return key.strip(), float(value)
+    except ValueError:
+        return key.strip(), value.strip()
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--problems", help="comma-separated names (default: all)")
     ap.add_argument("--tols", help="comma-separated tolerances (default: 1e-2 … 1e-6)")
     ap.add_argument("--masters", help="comma-separated: pc, multirate (default: both)")
     ap.add_argument("--no-write", action="store_true", help="do not touch docs/benchmarks.md")
+    ap.add_argument("--opt", action="append", default=[], metavar="KEY=VALUE",
+                    help="a controller option for the adaptive runs (e.g. predictive=true); "
+                         "implies --no-write")
+    ap.add_argument("--results", type=Path, default=RESULTS, help="where the raw results go")
     args = ap.parse_args(argv)
     problems = args.problems.split(",") if args.problems else list(suite.PROBLEMS)
     for p in problems:
@@ -262,12 +278,13 @@ def main(argv: list[str] | None = None) -> None:
     unknown = [m for m in masters if m not in MASTERS]
     if unknown:
         ap.error(f"unknown master(s) {unknown}; choose from {', '.join(MASTERS)}")
-    subset = bool(args.problems or args.tols or args.masters)
+    options = dict(_option(o) for o in args.opt)
+    subset = bool(args.problems or args.tols or args.masters or options)
     started = time.perf_counter()
     # one looser tolerance than asked, only to pair with the loosest for the re-run estimate
     pairing = [max(tols) * FACTOR]
-    jobs = [{"problem": p, "kind": m, "tol": tol} for p in problems for tol in [*tols, *pairing]
-            for m in masters]
+    jobs = [{"problem": p, "kind": m, "tol": tol, "options": options} for p in problems
+            for tol in [*tols, *pairing] for m in masters]
     with Pool(2) as pool:
         adaptive = _collect(pool, jobs)
         pair_estimates(adaptive)
@@ -276,8 +293,9 @@ def main(argv: list[str] | None = None) -> None:
             r.pop("points", None)
         lines = fixed_lines(pool, problems, adaptive)
     minutes = (time.perf_counter() - started) / 60
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps({"date": str(date.today()), "tols": tols, "masters": masters,
+    args.results.parent.mkdir(parents=True, exist_ok=True)
+    args.results.write_text(json.dumps({"date": str(date.today()), "tols": tols,
+                                        "masters": masters, "options": options,
                                    "problems": problems, "adaptive": adaptive, "fixed": lines},
                                   indent=1, default=float))
     out = [MARK_BEGIN, "", "## Benchmark suite (cosimstep.suite)", "",
