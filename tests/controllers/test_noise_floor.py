@@ -5,7 +5,6 @@ target, whose share per step shrinks with the step, must not crawl down to hmin 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 import cosimstep as cs
 from cosimstep.adapters.ode import make_solver

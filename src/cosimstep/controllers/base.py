@@ -104,6 +104,16 @@ NOISE_SHARE = 1e-3
 (:meth:`StepPolicy.noise`)."""
 
 
+SMOOTHING = 2.0 / 3.0
+"""Discount ``θ`` of the predictive control's double exponential smoothing of ``log c``
+(level gain ``1 − θ²``, trend gain ``(1 − θ)²``). With ``θ = 2/3`` the forecast's error on
+estimates that scatter at random has the variance the PI control leaves in ``log r`` (1.60
+against 1.60 times the scatter's, simulated), so it is as steady as the PI control, and unlike
+it it follows a steady drift of ``c`` without offset. ``θ = 0`` would be Gustafsson's
+predictive control (6.0 times the scatter's variance: on the suite's pendulums it made the
+steps zigzag, docs/concepts.md)."""
+
+
 @dataclass
 class StepPolicy:
     """Error norm and step-size update shared by the error-controlled controllers.
@@ -117,18 +127,17 @@ class StepPolicy:
     safety, grow, shrink:
         The new step is ``safety·h·ratio^(-1/k)``, limited to ``[shrink·h, grow·h]``.
     predictive:
-        Gustafsson's predictive control (as in Radau5) instead of ``pi``: after an accepted
-        step that followed an accepted step, the new step also carries the trend of the error
-        coefficient over the last two steps, ``(h/h_prev)·(r_prev/r)^(1/k)``; and at an event
-        the step starts again from the run's first step (the controllers' ``event``). The
-        error per step of a system that settles (a transient decaying, a pump run down) falls
-        by a steady factor per step *besides* what the step does; the PI control treats that
-        drift as a disturbance and lags behind it (measured: ratios of 0.03–0.05 against a
-        target of 0.1 for the whole settle of the pump-failure example, so ``pc`` spent 6–11 %
-        of its tolerance), while the predictive control follows it. Off by default: it also
-        follows the step-to-step scatter of the estimates, and on the pendulums, whose
-        estimates undercount, it delivered up to 56 × tol (suite measured both ways,
-        docs/concepts.md, "Step control that follows a settling system").
+        Step control that forecasts the error coefficient ``c = r/h^k`` instead of ``pi``: its
+        logarithm is smoothed with a level and a trend (Brown's double exponential smoothing,
+        :data:`SMOOTHING`), and the next step is the one whose forecast ratio is the target;
+        at an event the step starts again from the run's first step (the controllers'
+        ``event``). The error per step of a system that settles (a transient decaying, a pump
+        run down) falls by a steady factor per step *besides* what the step does; the PI
+        control treats that drift as a disturbance and settles below the target (at 0.51 of
+        it for a fall of 18 % per step; measured on the pump-failure example: ratios of
+        0.03–0.05 against 0.1 for the whole settle, so ``pc`` spent 6–11 % of its
+        tolerance). A forecast with a trend follows a steady drift without offset. Off by
+        default (docs/concepts.md, "Step control that follows a settling system").
     pi:
         Proportional–integral control (Gustafsson, the default): damps the step oscillation an
         I-controller shows on smooth problems.
@@ -191,7 +200,7 @@ class StepPolicy:
         self._span = 1.0
         self.memory = math.inf  # the measured error memory [s], set by the controller
         self._previous = self.target
-        self._last_accepted: tuple[float, float] | None = None  # (h, ratio) just before
+        self._forecast: tuple[float, float, float] | None = None  # level, trend of log c; k
         self._count = 0  # accepted steps
         self._elapsed = 0.0
         self._rejected: tuple[float, float, float] | None = None  # t, h, estimate / tol
@@ -202,7 +211,7 @@ class StepPolicy:
         self._span = t_end - t0
         self.memory = math.inf
         self._previous = self.target  # neutral: the first accepted step is not pushed
-        self._last_accepted = None
+        self._forecast = None
         self._count, self._elapsed = 0, 0.0
         self._rejected, self.floor, self.noise_steps = None, 0.0, 0
 
@@ -238,10 +247,7 @@ class StepPolicy:
         r = max(ratio, 1e-10)
         s = self.target
         if accepted and self.predictive:
-            factor = (s / r) ** (1.0 / k)
-            if self._last_accepted is not None:
-                h_prev, r_prev = self._last_accepted
-                factor *= (h / h_prev) * (r_prev / r) ** (1.0 / k)
+            factor = self._forecast_step(h, r, k) / h
         elif accepted and self.pi:
             # Written the usual way, safety · r^(-0.7/k) · r_prev^(0.4/k), the control settles
             # where safety · r^(-0.3/k) = 1, i.e. at r = safety^(k/0.3): 0.04 for safety 0.85
@@ -252,18 +258,30 @@ class StepPolicy:
             factor = self.safety * r ** (-1.0 / k)
         if accepted:
             self._previous = r
-            self._last_accepted = (h, r)
             self._count += 1
             self._elapsed += h
         else:
-            self._last_accepted = None  # the trend is broken: start it again
+            self._forecast = None  # the error model changed abruptly: forecast it anew
             factor = min(factor, 1.0)
         return min(h * min(max(factor, self.shrink), self.grow), self.hmax)
+
+    def _forecast_step(self, h: float, r: float, k: float) -> float:
+        """The step whose forecast error ratio is the target (:attr:`predictive`)."""
+        x = math.log(r) - k * math.log(h)  # log c, the error coefficient of this step
+        if self._forecast is None or self._forecast[2] != k:
+            level, trend = x, 0.0  # a new error model (first step, order change): no trend yet
+        else:
+            level, trend, _ = self._forecast
+            miss = x - (level + trend)
+            level += trend + (1.0 - SMOOTHING**2) * miss
+            trend += (1.0 - SMOOTHING) ** 2 * miss
+        self._forecast = (level, trend, k)
+        return math.exp((math.log(self.target) - level - trend) / k)
 
     def restart(self) -> None:
         """An event: the error coefficient's trend and the PI memory belong to the dynamics
         before it, so the control starts again as at the run's first step."""
-        self._last_accepted = None
+        self._forecast = None
         self._previous = self.target
 
     def noise(self, t: float, h: float, error: np.ndarray, y: np.ndarray) -> bool:
