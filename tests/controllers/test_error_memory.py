@@ -60,7 +60,7 @@ def _run(name: str, tol: float, **options) -> cs.SimulationResult:
 
 
 # measured err/tol with the probe (without): two_mass_damped tol 1e-4 with predictive control
-# 0.76 (0.17) — with the default PI control 0.062 (0.027): the PI lags the settling error
+# 0.23 (0.062) — with the default PI control 0.062 (0.027): the PI lags the settling error
 # (docs/concepts.md, "Step control that follows a settling system"); tol 1e-6 0.65;
 # kpr_separated tol 1e-4 0.23
 @pytest.mark.parametrize("name,tol,options", [("two_mass_damped", 1e-4, {"predictive": True}),
