@@ -48,6 +48,7 @@ class _Context:
         self.consumed = master.consumed
         self.held = master.held
         self.discrete = master.discrete
+        self.iterated = master.iteration is not None
         system = master.system
         self.readers = [(np.asarray(src, dtype=int), sl)
                         for src, sl in zip(system.src, system.output_slices)]

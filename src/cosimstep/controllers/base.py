@@ -45,6 +45,7 @@ class StepContext(Protocol):
     held: np.ndarray  # outputs some receiver holds constant over a step (no input derivatives)
     discrete: np.ndarray  # piecewise-constant outputs, held by every receiver (Port.discrete)
     readers: list[tuple[np.ndarray, slice]]  # per sub-model: the outputs it reads, its own
+    iterated: bool  # strong coupling: every step is iterated until its end values agree
 
     def step(self, t: float, h: float, *, order: int | None = None,
              end: np.ndarray | None = None,
