@@ -111,13 +111,15 @@ def test_a_failing_trial_step_is_a_rejection(examples, master, mode):
 
     tol = 1e-4
     spec, failed = _fragile(examples, 0.004, mode)
-    r = simulate(spec.system, 3.0, make_controller("pc", None, tol), MasterOptions(master, 2),
-                 reference=spec.reference)
+    # no error-memory probes: a probe's steps are not trial steps, and a sub-model that fails
+    # in one costs the probe, not a rejection (ErrorMemory.probe), so the counts would differ
+    r = simulate(spec.system, 3.0, make_controller("pc", None, tol, probe_every=0),
+                 MasterOptions(master, 2), reference=spec.reference)
     assert r.status == "ok", r.message
-    assert failed["count"] > 10  # measured 274 (pc), 334 (multirate): it tries to grow
+    assert failed["count"] > 10  # measured 609 (pc), 746 (multirate): it tries to grow
     assert r.steps_rejected >= failed["count"]
     assert r.models["bar2"].step_sizes.max() <= 0.004 * (1 + 1e-9)
-    assert r.error.max_scaled <= 10 * tol  # measured 2e-4 (pc, steps capped) and 0.14 tol
+    assert r.error.max_scaled <= 10 * tol  # measured 2e-4 (pc, steps capped) and 5.7 tol
 
 
 def test_a_failure_that_persists_down_to_hmin_ends_the_run(examples):
