@@ -108,9 +108,9 @@ NOISE_SHARE = 1e-3
 SMOOTHING = 2.0 / 3.0
 """Discount ``θ`` of the predictive control's double exponential smoothing of ``log c``
 (level gain ``1 − θ²``, trend gain ``(1 − θ)²``). With ``θ = 2/3`` the forecast's error on
-estimates that scatter at random has the variance the PI control leaves in ``log r`` (1.60
-against 1.60 times the scatter's, simulated), so it is as steady as the PI control, and unlike
-it it follows a steady drift of ``c`` without offset. ``θ = 0`` would be Gustafsson's
+estimates that scatter at random has about the variance the PI control leaves in ``log r``
+(1.6 times the scatter's, both simulated), so it is as steady as the PI control, and unlike it
+it follows a steady drift of ``c`` without offset. ``θ = 0`` would be Gustafsson's
 predictive control (6.0 times the scatter's variance: on the suite's pendulums it made the
 steps zigzag, docs/concepts.md)."""
 
