@@ -151,7 +151,7 @@ def monte_carlo() -> list[str]:
         f"2 workers {two:.0f} s ({one / two:.2f}× faster; runs only, the cluster's start "
         "left out).",
         f"- All 1,000 on 2 workers: {wall / 60:.1f} min ({wall / len(frame):.2f} s per "
-        "scenario; other benchmarks and tests shared the two cores for much of it).",
+        "scenario).",
         "", "![peak temperatures](figures/ship_montecarlo.png)"]
 
 
