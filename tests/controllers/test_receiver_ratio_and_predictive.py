@@ -6,6 +6,7 @@ Measured values are in the comments; docs/concepts.md has the reasoning and the 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -15,24 +16,37 @@ from cosimstep import loops, suite
 from cosimstep.controllers.base import StepPolicy
 
 
-def _strongly_mixed(tol: float, one_ratio: bool) -> cs.SimulationResult:
-    """The short light lower bar's pendulum; ``one_ratio`` gives every output the ratio over
-    all inputs (the estimator before the per-receiver one)."""
-    problem = suite.get("pendulum_strongly_mixed")
+def _run(name: str, until: float | None, tol: float, master: cs.MasterOptions,
+         change: Callable[[loops._Context], None] | None = None) -> cs.SimulationResult:
+    """A suite problem under `pc`; ``change`` alters the step context the loop builds (to
+    reproduce the estimator as it was before a fix)."""
+    problem = suite.get(name)
     system, reference = problem.build()
     original = loops._Context.__init__
 
-    def single(self, master) -> None:
-        original(self, master)
-        self.readers = [(np.flatnonzero(self.consumed), slice(0, len(self.names)))]
+    def changed(self, runner) -> None:
+        original(self, runner)
+        change(self)
 
-    if one_ratio:
-        loops._Context.__init__ = single
+    if change is not None:
+        loops._Context.__init__ = changed
     try:
-        return cs.simulate(system, 3.0, cs.make_controller("pc", None, tol),
-                           cs.MasterOptions("gauss-seidel", 2), reference=reference)
+        return cs.simulate(system, until or problem.until, cs.make_controller("pc", None, tol),
+                           master, reference=reference)
     finally:
         loops._Context.__init__ = original
+
+
+def _one_ratio(ctx: loops._Context) -> None:
+    """Every output gets the ratio over all inputs (the estimator before the per-receiver
+    one)."""
+    ctx.readers = [(np.flatnonzero(ctx.consumed), slice(0, len(ctx.names)))]
+
+
+def _strongly_mixed(tol: float, one_ratio: bool) -> cs.SimulationResult:
+    """The short light lower bar's pendulum over 3 s."""
+    return _run("pendulum_strongly_mixed", 3.0, tol, cs.MasterOptions("gauss-seidel", 2),
+                _one_ratio if one_ratio else None)
 
 
 # measured at tol 1e-4 over 3 s: per receiver err/tol 1.02, estimate/err 1.49 (1,100 calls);
@@ -99,25 +113,16 @@ def test_predictive_control_spends_the_tolerance_after_the_pump_fails() -> None:
     assert predictive.step_sizes[i] <= predictive.step_sizes[0]
 
 
+def _as_explicit(ctx: loops._Context) -> None:
+    """`pc` judges an iterated corrector by the predictor's end values, as it did before."""
+    ctx.iterated = False
+
+
 def _iterated(tol: float, judged_as_explicit: bool) -> cs.SimulationResult:
-    """The mixed pendulum with IQN-ILS; ``judged_as_explicit`` makes `pc` judge the iterated
-    corrector by the predictor's end values, as it did before."""
-    problem = suite.get("pendulum_mixed")
-    system, reference = problem.build()
-    original = loops._Context.__init__
-
-    def explicit(self, master) -> None:
-        original(self, master)
-        self.iterated = False
-
-    if judged_as_explicit:
-        loops._Context.__init__ = explicit
-    try:
-        return cs.simulate(system, problem.until, cs.make_controller("pc", None, tol),
-                           cs.MasterOptions("gauss-seidel", 2, coupling="iqn-ils"),
-                           reference=reference)
-    finally:
-        loops._Context.__init__ = original
+    """The mixed pendulum with IQN-ILS."""
+    return _run("pendulum_mixed", None, tol,
+                cs.MasterOptions("gauss-seidel", 2, coupling="iqn-ils"),
+                _as_explicit if judged_as_explicit else None)
 
 
 # measured at tol 1e-3: err/tol 0.86, estimate/err 1.65 (4,988 calls); judged as explicit 5.1

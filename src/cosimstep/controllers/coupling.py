@@ -272,7 +272,7 @@ class PredictorCorrector(_PolicyController):
         # a discrete output is held by every receiver in both runs: it moves no one
         cols = np.flatnonzero(ctx.consumed & ~ctx.discrete)
         if cols.size == 0:
-            return ratio * 0.0
+            return np.zeros(len(ratio))
         if len(ctx.times) < q + 2:
             return ratio  # no older point to judge the corrector by: count the predictor's error
         fresh = ~ctx.predicted[cols] | ctx.iterated
