@@ -1151,7 +1151,8 @@ def _copy_policy(policy: StepPolicy) -> StepPolicy:
     # the PI control even when the synchronous controllers were asked for the predictive one:
     # with it the multi-rate estimate's undercount on the mixed pendulum showed (27.8 × tol at
     # 1e-3, 10.9 × at 1e-5; docs/concepts.md)
-    fields.update(distribute=True, cancellation=3.0, target=0.5, predictive=False)
+    fields.update(distribute=True, cancellation=3.0, target=0.5, predictive=False, trend=False,
+                  unbiased=False)
     return StepPolicy(**fields)
 
 
