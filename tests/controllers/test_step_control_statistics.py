@@ -96,3 +96,23 @@ def test_the_pump_failure_settle_spends_the_tolerance(tol: float) -> None:
     assert 0.2 <= both.error_estimate / err <= 5.0, both.error_estimate / err
     assert pi.error.max_scaled < 0.1 * tol  # what the options changed
     assert both.calls_total < pi.calls_total
+
+
+# measured, multirate with the example's options: err/tol 0.16 / 0.11 / 0.16 / 0.13 at tol
+# 1e-3 … 1e-6 (201 … 694 calls), estimate/err 1.6 at 1e-3; with the PI control 0.056 / 0.048 /
+# 0.043 / 0.081
+def test_the_pump_example_settles_within_the_band_under_multirate_too() -> None:
+    tol = 1e-3
+    spec = cs.load_system("examples/pump_failure.toml")
+    options = {k: v for k, v in spec.controller.items() if k not in ("name", "tol")}
+    assert options == BOTH  # the example asks for both
+    master = cs.MasterOptions("multirate", 2)
+    both = cs.simulate(spec.system, spec.until, cs.make_controller("pc", None, tol, **options),
+                       master, reference=spec.reference)
+    pi = cs.simulate(spec.system, spec.until, cs.make_controller("pc", None, tol), master,
+                     reference=spec.reference)
+    assert both.success and pi.success
+    err = both.error.max_scaled
+    assert 0.1 <= err / tol <= 10.0, err / tol
+    assert 0.2 <= both.error_estimate / err <= 5.0
+    assert pi.error.max_scaled < 0.1 * tol

@@ -169,7 +169,9 @@ class StepPolicy:
         17 with the PI control, none above 10, and the pump-failure example is at 0.19–0.48 ×
         tol against 0.026–0.275; but a lightly damped stiff oscillator (``two_mass_stiff``
         over 2 s) went from 5.1 to 11.7 × tol at tol 1e-6 — a trend seen on the falling flank
-        of an oscillating error coefficient is followed past its turn.
+        of an oscillating error coefficient is followed past its turn. The multi-rate master
+        honours it (with it, the mixed pendulums there reached 5–38 × tol; the pump-failure
+        example came into the band).
     unbiased:
         Aim the step control so that the *arithmetic* mean of the accepted ratios is the
         target. The controls settle the logarithm of the ratio, i.e. its geometric mean, at
