@@ -1148,13 +1148,12 @@ def _copy_policy(policy: StepPolicy) -> StepPolicy:
     the synchronous master's, whose one step serves every sub-model); target 0.1 made the
     duplicated state and the KPR problem 10-100× more accurate than asked (docs/concepts.md)."""
     fields = {f.name: getattr(policy, f.name) for f in dataclasses.fields(policy)}
-    # the PI control even when the synchronous controllers were asked for the predictive one:
-    # with it the multi-rate estimate's undercount on the mixed pendulum showed (27.8 × tol at
-    # 1e-3, 10.9 × at 1e-5; docs/concepts.md). `trend` and `unbiased` are kept when asked
-    # for: a settling plant comes into the band with them (the pump-failure example 0.11-0.16
-    # × tol at 1e-3 … 1e-6, against 0.043-0.081), the pendulums leave it (5-38 × tol), as the
-    # options' documentation says.
-    fields.update(distribute=True, cancellation=3.0, target=0.5, predictive=False)
+    # the PI control even when the synchronous controllers were asked for the predictive one
+    # or to follow a trend: with them the multi-rate estimate's undercount on the mixed
+    # pendulums showed (predictive 27.8 × tol at 1e-3, 10.9 × at 1e-5; trend + unbiased 14-19 ×
+    # at 1e-3 … 1e-5; docs/concepts.md)
+    fields.update(distribute=True, cancellation=3.0, target=0.5, predictive=False, trend=False,
+                  unbiased=False)
     return StepPolicy(**fields)
 
 
