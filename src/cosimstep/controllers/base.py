@@ -311,7 +311,7 @@ class StepPolicy:
     def next_step(self, h: float, ratio: float, k: float, accepted: bool) -> float:
         """New step from the error ratio; ``k`` is the power of ``h`` the ratio scales with."""
         r = max(ratio, 1e-10)
-        if accepted:
+        if accepted and self.unbiased:
             self._track(r)
         s = self._aim()
         forecast = self._forecast_step(h, r, k, s) \
