@@ -49,6 +49,8 @@ def test_the_memory_is_the_longest_of_the_last_window_and_the_run_until_then() -
     assert probe.memory == 0.5
     probe.measured += [(4.0, 0.1)]
     assert probe.memory == 0.3
+    probe.forget()  # an event: measured again from scratch
+    assert probe.memory == math.inf and not probe.due(5.0)
 
 
 def _run(name: str, tol: float, **options) -> cs.SimulationResult:

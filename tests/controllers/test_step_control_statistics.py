@@ -81,21 +81,21 @@ def test_a_trend_is_followed_where_there_is_one_and_not_in_scatter() -> None:
         assert followed <= 0.1 * 400
 
 
-def _pump(tol: float, **options) -> cs.SimulationResult:
-    spec = cs.load_system("examples/pump_failure.toml")
-    return cs.simulate(spec.system, spec.until, cs.make_controller("pc", None, tol, **options),
+def _pump(tol: float, seed: int) -> cs.SimulationResult:
+    """The pump-failure example with the failure law's seed (and the reference's) changed."""
+    spec = cs.load_system("examples/pump_failure.toml", overrides={
+        "parameters": {"health.seed": seed, "fail_seed": float(seed)}})
+    return cs.simulate(spec.system, spec.until, cs.make_controller("pc", None, tol),
                        spec.master, reference=spec.reference)
 
 
-# measured err/tol with both options at tol 1e-4 / 1e-5: 0.27 / 0.27 (944 / 1,464 calls),
-# estimate/err 1.29 / 1.23; the PI control 0.059 / 0.026 (968 / 1,544 calls)
-@pytest.mark.parametrize("tol", [1e-4, 1e-5])
-def test_the_pump_failure_settle_spends_the_tolerance(tol: float) -> None:
-    both, pi = _pump(tol, **BOTH), _pump(tol)
-    assert both.success and pi.success
-    err = both.error.max_scaled
-    assert 0.1 <= err / tol <= 10.0, err / tol
-    assert 0.2 <= both.error_estimate / err <= 5.0, both.error_estimate / err
-    assert pi.error.max_scaled < 0.1 * tol  # what the options changed
-    assert both.calls_total < pi.calls_total
-
+# Before an event restarted the step control and cleared the error memory, these failure times
+# (seed 1: 338.7 s, 4: 677.1 s, 5: 511.4 s) left 39.5 / 97 / 29.9 × tol: the first steps after
+# the failure were sized by the control and the memory of the plant at rest. Measured after:
+# 0.014 / 0.40 / 0.064 × tol (docs/concepts.md, "An event starts the step control again").
+@pytest.mark.parametrize(("seed", "tol"), [(1, 1e-4), (4, 1e-6), (5, 1e-5)])
+def test_the_steps_after_a_failure_are_not_sized_by_the_plant_before_it(seed: int,
+                                                                         tol: float) -> None:
+    run = _pump(tol, seed)
+    assert run.success and len(run.events) == 1
+    assert run.error.max_scaled <= 1.0 * tol, run.error.max_scaled / tol

@@ -25,7 +25,8 @@ scales) dips like a cosine, which is log-concave, above the chord. Only rounding
 (:data:`CONVEXITY_SLACK`); a concave probe holds ``φ`` at its last value (no decay assumed) —
 a memory too short would overspend the tolerance, one too long only spends calls. For the same
 reason the memory used is the longest of the last :attr:`~ErrorMemory.window` measurements,
-and the run length until that many exist. A probe costs ``2 × steps`` master steps; probes are
+and the run length until that many exist (since the last event: :meth:`ErrorMemory.forget`).
+A probe costs ``2 × steps`` master steps; probes are
 at least :attr:`~ErrorMemory.every` accepted steps and 1/:attr:`~ErrorMemory.per_run` of the
 run apart, and stop when two in a row found half the run or more (nothing to gain).
 """
@@ -91,6 +92,13 @@ class ErrorMemory:
         window: stopping early only keeps the whole-run budget, which is safe."""
         last = self.measured[-2:]
         return len(last) == 2 and all(m >= 0.5 * self._span for _, m in last)
+
+    def forget(self) -> None:
+        """An event: the dynamics after it are not those the probes measured (a plant at rest
+        before a pump failure forgets fast; the transient after it does not), so the memory is
+        the run's length again until probes after the event measure it."""
+        self.measured.clear()
+        self._since = 0
 
     def accepted(self) -> None:
         self._since += 1
