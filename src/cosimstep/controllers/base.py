@@ -182,8 +182,9 @@ class StepPolicy:
         step). Meant with :attr:`unbiased`. Off by default: measured on the suite with both
         (docs/concepts.md, "A trend only where the estimates show one"), 14 of the 65 ``pc``
         cells are outside err/tol [0.1, 10] against 17 with the PI control, none above 10
-        (the largest 6.5 against 7.3), and the pump-failure example is at 0.15–0.34 × tol
-        against 0.026–0.275; not yet measured on the rest of the benchmarks as the default.
+        (the largest 6.5 against 7.3), and the pump-failure example at 0.026–0.21 × tol
+        against 0.006–0.13 (since an event starts the step control again: before, 0.15–0.34
+        against 0.026–0.275); not yet measured on the rest of the benchmarks as the default.
         The multi-rate master keeps its PI control (with this option the mixed pendulums
         reached 14–19 × tol there).
     unbiased:
