@@ -89,15 +89,23 @@ def resync_row(args: tuple[float, str]) -> str:
             f"{result.wall_s:.1f} |")
 
 
-def pump_row(args: tuple[str, str, float]) -> str:
-    """``control``: "example" = the example's ``[controller]`` options (trend, unbiased) at
-    ``tol``; "PI" = the default step control."""
-    master, control, tol = args
-    spec = load_system(EXAMPLES / "pump_failure.toml")
+def _pump(master: str, tol: float, example_control: bool = False, seed: int | None = None):
+    """The pump-failure example at ``tol``: with its own ``[controller]`` options (trend,
+    unbiased) or the default step control; with another failure seed (the reference's too)."""
+    overrides = None if seed is None else {
+        "parameters": {"health.seed": seed, "fail_seed": float(seed)}}
+    spec = load_system(EXAMPLES / "pump_failure.toml", overrides=overrides)
     options = {k: v for k, v in spec.controller.items() if k not in ("name", "tol")} \
-        if control == "example" else {}
-    result = simulate(spec.system, spec.until, make_controller("pc", None, tol, **options),
-                      MasterOptions(master, 2), reference=spec.reference)
+        if example_control else {}
+    return simulate(spec.system, spec.until, make_controller("pc", None, tol, **options),
+                    MasterOptions(master, 2), reference=spec.reference)
+
+
+def pump_row(args: tuple[str, str, float]) -> str:
+    """``control``: "example" = the example's ``[controller]`` options at ``tol``; "PI" = the
+    default step control."""
+    master, control, tol = args
+    result = _pump(master, tol, example_control=control == "example")
     err = result.error.max_scaled
     (event,) = result.events
     return (f"| {master} | {control} | {tol:g} | {result.status} | {event.t:.6g} | "
@@ -105,16 +113,15 @@ def pump_row(args: tuple[str, str, float]) -> str:
 
 
 SEEDS = range(1, 20)  # failure times other than the example's (seed 11 is the example)
+SEED_TOLS = (1e-4, 1e-5, 1e-6)
+SEED_MASTERS = ("gauss-seidel", "multirate")
 
 
 def seed_run(args: tuple[str, int, float]) -> tuple[str, int, float, float, float, int]:
-    """The pump-failure example with another failure seed (the reference's too), default step
-    control: (master, seed, tol, failure time, err/tol, calls)."""
+    """The pump-failure example with another failure seed, default step control: (master,
+    seed, tol, failure time, err/tol, calls)."""
     master, seed, tol = args
-    spec = load_system(EXAMPLES / "pump_failure.toml",
-                       overrides={"parameters": {"health.seed": seed, "fail_seed": float(seed)}})
-    result = simulate(spec.system, spec.until, make_controller("pc", None, tol),
-                      MasterOptions(master, 2), reference=spec.reference)
+    result = _pump(master, tol, seed=seed)
     (event,) = result.events
     err = result.error.max_scaled / tol if result.status == "ok" else float("inf")
     return master, seed, tol, event.t, err, result.calls_total
@@ -122,8 +129,8 @@ def seed_run(args: tuple[str, int, float]) -> tuple[str, int, float, float, floa
 
 def seed_rows(runs: list[tuple[str, int, float, float, float, int]]) -> list[str]:
     rows = []
-    for master in ("gauss-seidel", "multirate"):
-        for tol in (1e-4, 1e-5, 1e-6):
+    for master in SEED_MASTERS:
+        for tol in SEED_TOLS:
             cell = [r for r in runs if r[0] == master and r[2] == tol]
             errs = np.array([r[4] for r in cell])
             calls = [r[5] for r in cell]
@@ -147,8 +154,8 @@ def main() -> None:
         ball = pool.map(ball_row, ball_jobs)
         resync = pool.map(resync_row, resync_jobs)
         pump = pool.map(pump_row, pump_jobs)
-        seeds = pool.map(seed_run, [(m, seed, tol) for m in ("gauss-seidel", "multirate")
-                                    for seed in SEEDS for tol in (1e-4, 1e-5, 1e-6)])
+        seeds = pool.map(seed_run, [(m, seed, tol) for m in SEED_MASTERS
+                                    for seed in SEEDS for tol in SEED_TOLS])
     times = sorted({round(r[3], 1) for r in seeds})
     lines = [
         MARK_BEGIN,
