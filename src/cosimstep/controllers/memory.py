@@ -26,9 +26,10 @@ scales) dips like a cosine, which is log-concave, above the chord. Only rounding
 a memory too short would overspend the tolerance, one too long only spends calls. For the same
 reason the memory used is the longest of the last :attr:`~ErrorMemory.window` measurements,
 and the run length until that many exist (since the last event: :meth:`ErrorMemory.forget`).
-A probe costs ``2 × steps`` master steps; probes are
-at least :attr:`~ErrorMemory.every` accepted steps and 1/:attr:`~ErrorMemory.per_run` of the
-run apart, and stop when two in a row found half the run or more (nothing to gain).
+A probe costs ``2 × steps`` master steps. Until the window is full the probes follow each other
+every ``steps`` accepted steps (every step meanwhile pays for the run's whole length); then
+they are at least :attr:`~ErrorMemory.every` accepted steps and 1/:attr:`~ErrorMemory.per_run`
+of the run apart, and stop when two in a row found half the run or more (nothing to gain).
 """
 
 from __future__ import annotations
@@ -68,7 +69,7 @@ class ErrorMemory:
                 "per_run": self.per_run}
 
     def reset(self, t0: float, t_end: float) -> None:
-        """A run starts: no measurement yet, the first probe after `every` accepted steps."""
+        """A run starts: no measurement yet, the first probe after `steps` accepted steps."""
         self.measured.clear()
         self._since, self._last = 0, -math.inf
         self._gap = (t_end - t0) / self.per_run
@@ -82,9 +83,19 @@ class ErrorMemory:
         return max(m for _, m in self.measured[-self.window:])
 
     def due(self, t: float) -> bool:
-        """Whether a step accepted at ``t`` is to be probed (save the predictor's state)."""
-        return self.every > 0 and self._since >= self.every and t - self._last >= self._gap \
-            and len(self.measured) < self.per_run and not self._settled()
+        """Whether a step accepted at ``t`` is to be probed (save the predictor's state).
+
+        Until :attr:`window` measurements exist (at the start and after an event) every step
+        shares the tolerance over the run's whole length, the dearest assumption, so the
+        probes come as soon as they can — each :attr:`steps` accepted steps after the last,
+        whatever the time between — and the spacing (:attr:`every`, 1/:attr:`per_run` of the
+        run) applies only once the memory is known, to keep it up to date at little cost.
+        """
+        if self.every == 0 or len(self.measured) >= self.per_run or self._settled():
+            return False
+        if len(self.measured) < self.window:
+            return self._since >= self.steps
+        return self._since >= self.every and t - self._last >= self._gap
 
     def _settled(self) -> bool:
         """The last two measurements found a memory of half the run or more: the calls a
