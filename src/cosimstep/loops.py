@@ -575,12 +575,11 @@ class FixedLoop(_Loop):
         n = self.n
         if self.sink is not None and n >= self._stored:
             first = self._stored
-            self.sink.add_points(self.offset + first, self.times[first:n + 1].tolist(),
-                                 self.table[first:n + 1].tolist())
+            self.sink.add_points(self.offset + first, self.times[first:n + 1],
+                                 self.table[first:n + 1])
             if first == 0:
                 first = 1
-            self.sink.add_accepted_attempts(self.times[first - 1:n].tolist(),
-                                            self.hs[first - 1:n].tolist())
+            self.sink.add_accepted_attempts(self.times[first - 1:n], self.hs[first - 1:n])
             self._stored = n + 1
             if self.checkpoints is not None and self.checkpoints.due(n):
                 self.checkpoints.take(self, n)

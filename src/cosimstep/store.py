@@ -5,10 +5,15 @@ Tables (one file can hold many runs)::
     run(id, created, system, config_json, status, message, t_end, wall_s, summary_json,
         host, pid, heartbeat)                          -- who writes it, and when it last did
     variable(run_id, id, name, unit)                   -- one row per exchanged output
-    point(run_id, step, t)                             -- accepted communication points
-    sample(run_id, step, variable_id, value)           -- every exchanged value at every point
+    point_block(run_id, first_step, n, data)           -- the communication points first_step …
+                                                          first_step + n - 1: n rows of (t, value
+                                                          of variable 0, 1, ...) as little-endian
+                                                          float64 (read_run gives them as arrays)
     reference(run_id, step, variable_id, value)        -- the monolithic reference there, if any
-    attempt(run_id, seq, model, t, h, accepted, error) -- every step attempt, rejected ones too
+    attempt(run_id, seq, model, t, h, accepted, error) -- step attempts, rejected ones too
+    step_block(run_id, first_seq, n, data)             -- accepted synchronous steps without an
+                                                          estimate, attempts first_seq … as rows
+                                                          of (t, h), float64 like point_block
     calls(run_id, model, calls, time_in_model_s)
     own_point(run_id, variable_id, seq, t, value)      -- multi-rate: each output at its own
                                                           sub-model's communication points
@@ -21,6 +26,13 @@ Tables (one file can hold many runs)::
 
 Rows are buffered and committed at least every ``flush_seconds`` of wall time, so a run that is
 interrupted or crashes keeps what it computed up to the last commit.
+
+Why blocks for the points: a row per exchanged value cost 1-2 µs (SQLite's per-row work), which
+made a cheap sub-model's run with the store 3-7 times as long as without it; a block of every
+point written between two commits costs a copy. The values are then no longer one SQL row each:
+``read_run`` (or ``run --json``, ``to_pandas``) reads them. Stores written before hold their
+points in the tables ``point(run_id, step, t)`` and ``sample(run_id, step, variable_id, value)``,
+which are still read.
 """
 
 from __future__ import annotations
@@ -51,6 +63,12 @@ CREATE TABLE IF NOT EXISTS point(
 CREATE TABLE IF NOT EXISTS sample(
     run_id INTEGER, step INTEGER, variable_id INTEGER, value REAL,
     PRIMARY KEY(run_id, variable_id, step)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS point_block(
+    run_id INTEGER, first_step INTEGER, n INTEGER, data BLOB,
+    PRIMARY KEY(run_id, first_step)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS step_block(
+    run_id INTEGER, first_seq INTEGER, n INTEGER, data BLOB,
+    PRIMARY KEY(run_id, first_seq)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS reference(
     run_id INTEGER, step INTEGER, variable_id INTEGER, value REAL,
     PRIMARY KEY(run_id, variable_id, step)) WITHOUT ROWID;
@@ -106,8 +124,8 @@ class Store:
         _add_owner_columns(self._db)
         self._flush_seconds = flush_seconds
         self._last_flush = time.monotonic()
-        self._points: list[tuple] = []
-        self._samples: list[tuple] = []
+        self._points = _Blocks()  # (t, values) of consecutive points
+        self._steps = _Blocks()  # (t, h) of consecutive accepted synchronous steps
         self._attempts: list[tuple] = []
         self._n_vars = 0
         self._seq = 0
@@ -153,7 +171,9 @@ class Store:
             SYMBOLS.code(value)  # the codes of the stored points decode in this process
         db.execute("DELETE FROM point WHERE run_id=? AND step>?", (rid, ck.point))
         db.execute("DELETE FROM sample WHERE run_id=? AND step>?", (rid, ck.point))
+        _truncate(db, "point_block", "first_step", rid, ck.point + 1, 1 + len(names))
         db.execute("DELETE FROM attempt WHERE run_id=? AND seq>=?", (rid, ck.attempt_seq))
+        _truncate(db, "step_block", "first_seq", rid, ck.attempt_seq, 2)
         for table in ("calls", "event", "reference"):  # written again at the end
             db.execute(f"DELETE FROM {table} WHERE run_id=?", (rid,))
         db.execute("UPDATE run SET status='running', message=NULL, host=?, pid=?, heartbeat=? "
@@ -165,15 +185,8 @@ class Store:
     def points_before(self, step: int) -> tuple[np.ndarray, np.ndarray]:
         """The stored points ``0 … step - 1`` of this run: times and values (one row each)."""
         self.flush()
-        times = np.array([r[0] for r in self._db.execute(
-            "SELECT t FROM point WHERE run_id=? AND step<? ORDER BY step",
-            (self.run_id, step))], dtype=float)
-        values = np.full((times.size, self._n_vars), np.nan)
-        for var, at, value in self._db.execute(
-                "SELECT variable_id, step, value FROM sample WHERE run_id=? AND step<?",
-                (self.run_id, step)):
-            values[at, var] = value
-        return times, values
+        times, values = _read_points(self._db, self.run_id, self._n_vars)
+        return times[:step], values[:step]
 
     def add_symbols(self, symbols: Mapping[int, str | bytes]) -> None:
         """Values of String and Binary codes (:mod:`cosimstep.symbols`) the run used."""
@@ -196,9 +209,10 @@ class Store:
         self._db.commit()
 
     def add_point(self, step: int, t: float, y: np.ndarray) -> None:
-        self._points.append((self.run_id, step, t))
-        rid = self.run_id
-        self._samples.extend((rid, step, i, float(v)) for i, v in enumerate(y))
+        row = np.empty((1, 1 + self._n_vars))
+        row[0, 0] = t
+        row[0, 1:] = y
+        self._points.add(step, row)
         if time.monotonic() - self._last_flush > self._flush_seconds:
             self.flush()
 
@@ -208,36 +222,37 @@ class Store:
         self._seq += 1
 
     def add_points(self, first_step: int, times: Sequence[float],
-                   rows: Sequence[Sequence[float]]) -> None:
-        """Points ``first_step, first_step + 1, ...`` at once (the rows :meth:`add_point` would
+                   rows: Sequence[Sequence[float]] | np.ndarray) -> None:
+        """Points ``first_step, first_step + 1, ...`` at once (what :meth:`add_point` would
         write one by one)."""
-        rid = self.run_id
-        self._points.extend((rid, first_step + i, t) for i, t in enumerate(times))
-        self._samples.extend((rid, first_step + i, j, v) for i, row in enumerate(rows)
-                             for j, v in enumerate(row))
+        values = np.asarray(rows, dtype=float).reshape(len(times), self._n_vars)
+        self._points.add(first_step, np.column_stack([np.asarray(times, dtype=float), values]))
         if time.monotonic() - self._last_flush > self._flush_seconds:
             self.flush()
 
     def add_accepted_attempts(self, times: Sequence[float], steps: Sequence[float]) -> None:
         """Accepted synchronous attempts ``[t, t + h]`` in order, without an error estimate."""
-        rid, seq = self.run_id, self._seq
-        self._attempts.extend((rid, seq + i, None, t, h, 1, None)
-                              for i, (t, h) in enumerate(zip(times, steps)))
-        self._seq += len(times)
+        if len(times):
+            self._steps.add(self._seq, np.column_stack([np.asarray(times, dtype=float),
+                                                        np.asarray(steps, dtype=float)]))
+            self._seq += len(times)
 
     def flush(self) -> None:
-        """Write the buffered rows and commit. Every row is written idempotently (``INSERT OR
-        REPLACE``): a signal (Ctrl-C, SIGTERM) can land after the rows were written and before
-        the buffers were cleared, and the next flush then hands them again."""
-        db = self._db
-        db.executemany("INSERT OR REPLACE INTO point VALUES (?, ?, ?)", self._points)
-        db.executemany("INSERT OR REPLACE INTO sample VALUES (?, ?, ?, ?)", self._samples)
+        """Write the buffered rows and blocks and commit. Every row is written idempotently
+        (``INSERT OR REPLACE``, a block keyed by its first index): a signal (Ctrl-C, SIGTERM)
+        can land after the rows were written and before the buffers were cleared, and the next
+        flush then hands them again."""
+        db, rid = self._db, self.run_id
+        db.executemany("INSERT OR REPLACE INTO point_block VALUES (?, ?, ?, ?)",
+                       [(rid, *b) for b in self._points.blocks()])
+        db.executemany("INSERT OR REPLACE INTO step_block VALUES (?, ?, ?, ?)",
+                       [(rid, *b) for b in self._steps.blocks()])
         db.executemany("INSERT OR REPLACE INTO attempt VALUES (?, ?, ?, ?, ?, ?, ?)",
                        self._attempts)
-        db.execute("UPDATE run SET heartbeat=? WHERE id=?", (time.time(), self.run_id))
+        db.execute("UPDATE run SET heartbeat=? WHERE id=?", (time.time(), rid))
         db.commit()
-        self._points.clear()
-        self._samples.clear()
+        self._points.written()
+        self._steps.written()
         self._attempts.clear()
         self._last_flush = time.monotonic()
 
@@ -423,8 +438,8 @@ def delete_run(path: str | Path, run_id: int) -> None:
                            f"{table[run_id]['pid']} on {table[run_id]['host']}")
     with sqlite3.connect(path) as db:
         db.executescript(SCHEMA)  # a store from before some tables existed
-        for name in ("variable", "point", "sample", "reference", "attempt", "own_point",
-                     "event", "calls", "symbol", "checkpoint"):
+        for name in ("variable", "point", "sample", "point_block", "reference", "attempt",
+                     "step_block", "own_point", "event", "calls", "symbol", "checkpoint"):
             db.execute(f"DELETE FROM {name} WHERE run_id=?", (run_id,))
         db.execute("DELETE FROM run WHERE id=?", (run_id,))
 
@@ -444,12 +459,9 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
             raise LookupError(f"{path} has no run {run_id}")
         var = db.execute("SELECT name, unit FROM variable WHERE run_id=? ORDER BY id",
                          (run_id,)).fetchall()
-        times = np.array([r[0] for r in db.execute(
-            "SELECT t FROM point WHERE run_id=? ORDER BY step", (run_id,))], dtype=float)
-        values = _read_values(db, run_id, len(var), len(times))
+        times, values = _read_points(db, run_id, len(var))
         reference = _read_reference(db, run_id, len(var), len(times))
-        att = db.execute("SELECT model, t, h, accepted FROM attempt WHERE run_id=? ORDER BY seq",
-                         (run_id,)).fetchall()
+        attempts, attempt_models = _read_attempts(db, run_id)
         own_points = _read_own_points(db, run_id, var)
         events = [{"t": t, "source": src, "kind": kind, "payload": json.loads(payload),
                    "late": bool(late)}
@@ -464,8 +476,7 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
         config=json.loads(meta[3] or "{}"), summary=json.loads(meta[4] or "{}"),
         names=[v[0] for v in var], units=[v[1] for v in var], times=times, values=values,
         reference=reference,
-        attempts=np.array([(a[1], a[2], a[3]) for a in att], dtype=float).reshape(-1, 3),
-        attempt_models=[a[0] for a in att], own_points=own_points, events=events,
+        attempts=attempts, attempt_models=attempt_models, own_points=own_points, events=events,
         symbols=symbols)
 
 
@@ -477,12 +488,91 @@ def _last_run_id(db: sqlite3.Connection, path: Path) -> int:
     return int(row[0])
 
 
-def _read_values(db: sqlite3.Connection, run_id: int, n_vars: int, n_points: int) -> np.ndarray:
-    """Exchanged values as (n_points, n_vars); samples are stored variable by variable."""
-    flat = np.array([r[0] for r in db.execute(
-        "SELECT value FROM sample WHERE run_id=? ORDER BY variable_id, step", (run_id,))],
-        dtype=float)
-    return flat.reshape(n_vars, n_points).T if n_vars else np.empty((n_points, 0))
+def _read_points(db: sqlite3.Connection, run_id: int,
+                 n_vars: int) -> tuple[np.ndarray, np.ndarray]:
+    """A run's point times and exchanged values (n_points, n_vars), from its blocks and, for
+    points a store from before the blocks wrote, the per-value rows."""
+    blocks = db.execute("SELECT first_step, n, data FROM point_block WHERE run_id=? "
+                        "ORDER BY first_step", (run_id,)).fetchall()
+    old = np.array(db.execute("SELECT step, t FROM point WHERE run_id=? ORDER BY step",
+                              (run_id,)).fetchall(), dtype=float).reshape(-1, 2)
+    size = max([first + n for first, n, _ in blocks]
+               + [int(old[-1, 0]) + 1 if len(old) else 0])
+    times, values = np.full(size, np.nan), np.full((size, n_vars), np.nan)
+    if len(old):
+        times[old[:, 0].astype(int)] = old[:, 1]
+        rows = np.array(db.execute("SELECT step, variable_id, value FROM sample WHERE run_id=?",
+                                   (run_id,)).fetchall(), dtype=float).reshape(-1, 3)
+        values[rows[:, 0].astype(int), rows[:, 1].astype(int)] = rows[:, 2]
+    for first, n, data in blocks:
+        block = np.frombuffer(data, dtype="<f8").reshape(n, 1 + n_vars)
+        times[first:first + n], values[first:first + n] = block[:, 0], block[:, 1:]
+    return times, values
+
+
+def _read_attempts(db: sqlite3.Connection, run_id: int) -> tuple[np.ndarray, list[str | None]]:
+    """Every stored attempt in order, as rows (t, h, accepted), and the model of each (``None``
+    for a synchronous step)."""
+    rows = db.execute("SELECT seq, model, t, h, accepted FROM attempt WHERE run_id=?",
+                      (run_id,)).fetchall()
+    seq = [np.array([r[0] for r in rows], dtype=np.int64)]
+    table = [np.array([r[2:] for r in rows], dtype=float).reshape(-1, 3)]
+    models: list[str | None] = [r[1] for r in rows]
+    for first, n, data in db.execute("SELECT first_seq, n, data FROM step_block WHERE run_id=?",
+                                     (run_id,)):
+        block = np.frombuffer(data, dtype="<f8").reshape(n, 2)
+        seq.append(np.arange(first, first + n, dtype=np.int64))
+        table.append(np.column_stack([block, np.ones(n)]))
+        models += [None] * n
+    order = np.argsort(np.concatenate(seq), kind="stable")
+    return np.concatenate(table)[order], [models[i] for i in order]
+
+
+def _truncate(db: sqlite3.Connection, table: str, key: str, run_id: int, keep: int,
+              width: int) -> None:
+    """Remove the rows from index ``keep`` on from ``table``'s blocks of ``width`` floats a
+    row (a resumed run goes on from its checkpoint)."""
+    for first, data in db.execute(f"SELECT {key}, data FROM {table} WHERE run_id=? AND "
+                                  f"{key}<? AND {key}+n>?", (run_id, keep, keep)).fetchall():
+        k = keep - first
+        db.execute(f"UPDATE {table} SET n=?, data=? WHERE run_id=? AND {key}=?",
+                   (k, data[:8 * k * width], run_id, first))
+    db.execute(f"DELETE FROM {table} WHERE run_id=? AND {key}>=?", (run_id, keep))
+
+
+class _Blocks:
+    """Rows of floats with consecutive indices, gathered into one blob per run of indices
+    between two writes (a gap or a rewritten index starts a new block)."""
+
+    def __init__(self) -> None:
+        self.first: int | None = None
+        self.next = 0
+        self._parts: list[np.ndarray] = []
+        self._ready: list[tuple[int, int, bytes]] = []
+
+    def add(self, first: int, rows: np.ndarray) -> None:
+        if self.first is not None and first != self.next:
+            self._cut()
+        if self.first is None:
+            self.first = first
+        self._parts.append(rows)
+        self.next = first + len(rows)
+
+    def _cut(self) -> None:
+        if self._parts and self.first is not None:
+            data = np.concatenate(self._parts) if len(self._parts) > 1 else self._parts[0]
+            self._ready.append((self.first, len(data),
+                                np.ascontiguousarray(data, dtype="<f8").tobytes()))
+        self._parts, self.first = [], None
+
+    def blocks(self) -> list[tuple[int, int, bytes]]:
+        """``(first index, rows, data)`` of everything added since the last :meth:`written`
+        (the same blocks again if that write did not complete)."""
+        self._cut()
+        return self._ready
+
+    def written(self) -> None:
+        self._ready = []
 
 
 def _read_reference(db: sqlite3.Connection, run_id: int, n_vars: int,
@@ -562,7 +652,7 @@ class GridStore:
     def add_points(self, first_step: int, times: Sequence[float],
                    rows: Sequence[Sequence[float]]) -> None:
         for i, (t, y) in enumerate(zip(times, rows)):
-            self.add_point(first_step + i, float(t), np.asarray(y, dtype=float))
+            self.add_point(first_step + i, float(t), np.array(y, dtype=float))
 
     def add_attempt(self, model: str | None, t: float, h: float, accepted: bool,
                     error: float | None) -> None:

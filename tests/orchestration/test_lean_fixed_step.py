@@ -243,7 +243,8 @@ class Probe(SubModel):
         time.sleep(0.01)
         if abs(t - self.probe_at) < 1e-9:
             with sqlite3.connect(self.db) as db:
-                self.committed = db.execute("SELECT COUNT(*) FROM point").fetchone()[0]
+                self.committed = db.execute("SELECT COALESCE(SUM(n), 0) FROM point_block"
+                                            ).fetchone()[0]
         self.t = t + h
 
     def get_outputs(self) -> np.ndarray:

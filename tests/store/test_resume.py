@@ -174,8 +174,11 @@ def test_ctrl_c_during_an_fmu_run_keeps_every_point_once(examples: Path, tmp_pat
     stored = read_run(db)
     assert stored.status == "interrupted" and "interrupted by the user" in stored.message
     with sqlite3.connect(db) as con:
-        steps = [r[0] for r in con.execute("SELECT step FROM point ORDER BY step")]
-        accepted = con.execute("SELECT COUNT(*) FROM attempt WHERE accepted=1").fetchone()[0]
+        steps = [s for first, n in con.execute("SELECT first_step, n FROM point_block "
+                                               "ORDER BY first_step")
+                 for s in range(first, first + n)]
+        accepted = con.execute("SELECT COUNT(*) FROM attempt WHERE accepted=1").fetchone()[0] \
+            + con.execute("SELECT COALESCE(SUM(n), 0) FROM step_block").fetchone()[0]
     assert steps == list(range(len(steps))) and accepted == len(steps) - 1
     assert stored.summary["t_end"] == stored.times[-1] < 30.0
     assert not [p for p in tmp.iterdir() if p.name.startswith("cosimstep-")]

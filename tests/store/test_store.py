@@ -28,9 +28,10 @@ def test_store_round_trip_and_sql(examples, tmp_path):
     df = stored.to_pandas()
     assert df.loc[1.0, "bar1.theta"] == result["bar1.theta"][100]
     with sqlite3.connect(db) as con:  # plain SQL works
-        n = con.execute("SELECT COUNT(*) FROM sample WHERE run_id = ?", (stored.run_id,)).fetchone()
+        n, size = con.execute("SELECT SUM(n), SUM(length(data)) FROM point_block "
+                              "WHERE run_id = ?", (stored.run_id,)).fetchone()
         calls = dict(con.execute("SELECT model, calls FROM calls").fetchall())
-    assert n[0] == 251 * 4
+    assert n == 251 and size == 251 * (1 + 4) * 8  # t and four values a point, float64
     assert calls == {"bar1": 250, "bar2": 250}
 
 
@@ -61,7 +62,8 @@ def _long_run(examples, db):
         time.sleep(0.2)
         try:
             with sqlite3.connect(db) as con:
-                points = con.execute("SELECT COUNT(*) FROM point").fetchone()[0]
+                points = con.execute("SELECT COALESCE(SUM(n), 0) FROM point_block"
+                                     ).fetchone()[0]
         except sqlite3.OperationalError:
             points = 0  # not created yet, or the schema is still being written
     return proc, points
@@ -148,9 +150,11 @@ def test_an_interrupt_after_a_flush_wrote_and_before_it_cleared_raises_nothing(e
     def flush_interrupted_before_clearing(self):
         calls.append(1)
         if len(calls) == 2:
-            db = self._db
-            db.executemany("INSERT OR REPLACE INTO point VALUES (?, ?, ?)", self._points)
-            db.executemany("INSERT OR REPLACE INTO sample VALUES (?, ?, ?, ?)", self._samples)
+            db, rid = self._db, self.run_id
+            db.executemany("INSERT OR REPLACE INTO point_block VALUES (?, ?, ?, ?)",
+                           [(rid, *b) for b in self._points.blocks()])
+            db.executemany("INSERT OR REPLACE INTO step_block VALUES (?, ?, ?, ?)",
+                           [(rid, *b) for b in self._steps.blocks()])
             db.executemany("INSERT OR REPLACE INTO attempt VALUES (?, ?, ?, ?, ?, ?, ?)",
                            self._attempts)
             db.commit()
@@ -210,3 +214,29 @@ def _simulate_to(spec, controller, opts, db, **output):
                                 store=db, **output)
     assert result.success, result.message
     return result, db
+
+
+def test_points_are_read_from_blocks_and_from_a_store_written_before_them(tmp_path):
+    """A store from before the blocks (a row per value) still reads; a resumed run's blocks
+    are cut at its checkpoint."""
+    import sqlite3
+
+    from cosimstep.store import Store, _read_points, _truncate, read_run
+
+    db = tmp_path / "old.db"
+    store = Store(db)
+    rid = store.begin("old", {}, ["a", "b"], ["1", "1"])
+    with sqlite3.connect(db) as con:  # what the row-per-value store wrote
+        con.executemany("INSERT INTO point VALUES (?, ?, ?)", [(rid, s, 0.5 * s) for s in range(3)])
+        con.executemany("INSERT INTO sample VALUES (?, ?, ?, ?)",
+                        [(rid, s, v, 10.0 * s + v) for s in range(3) for v in range(2)])
+    store.add_points(3, [1.5, 2.0], np.array([[30.0, 31.0], [40.0, 41.0]]))  # and on, blocks
+    store.add_point(5, 2.5, np.array([50.0, 51.0]))
+    store.finish("ok", "", 2.5, 0.0, {}, {}, {})
+    stored = read_run(db)
+    assert np.array_equal(stored.times, 0.5 * np.arange(6))
+    assert np.array_equal(stored.values, 10.0 * np.arange(6)[:, None] + [0.0, 1.0])
+    _truncate(store._db, "point_block", "first_step", rid, 4, 3)  # keep the points 0 … 3
+    times, values = _read_points(store._db, rid, 2)
+    assert np.array_equal(times, [0.0, 0.5, 1.0, 1.5]) and values[-1].tolist() == [30.0, 31.0]
+    store.close()
