@@ -50,6 +50,14 @@ NODES = np.array([0.0, 1 / 3, 2 / 3, 1.0])  # where inputs are sampled over a st
 BETWEEN = np.array([1 / 6, 1 / 2, 5 / 6])  # where that cubic is checked against the partners
 STENCIL = 4  # stored points a partner's trajectory is interpolated from (a local cubic)
 INITIAL_GAIN = 10.0  # 1/s, until a consumer's sensitivity has been measured once
+GAIN_SPAN = 4.0
+"""A measured gain is taken to hold for steps within this factor of the one it was measured
+on, and measured again outside (:meth:`Multirate._refresh_gain`). The estimate scales the
+response to an input error linearly with the step (``gain · h · e``), which is right for a
+receiver that integrates its input; one that settles within the step (a stiff partition) answers
+with its static sensitivity, so its gain falls like ``1/h``: a gain from the steps of a boundary
+layer, kept, overstated the slow sub-model's error 100-500× once the steps were 100× longer,
+and one measured on long steps would understate it on short ones."""
 CALIBRATION = 0.3
 """Scale of the one-sided interpolation estimate, measured (docs/concepts.md). The
 cubic-against-quartic difference at the newest interval overstates what a consumer reads there
@@ -92,6 +100,8 @@ class Track:
     segment: int = 0  # first point after the last time event (extrapolation restarts there)
     pending: tuple | None = None  # (token, t0, h, assumed inputs at NODES)
     gain: float | None = None  # measured: scaled output change / (h · scaled input change)
+    gain_h: float = math.nan  # the step the gain was measured on
+    gain_checks: int = 0  # calls that measured the gain again (Multirate._refresh_gain)
     calls: int = 0
     accepted: int = 0
     rejected: int = 0
@@ -419,7 +429,9 @@ class Multirate:
         if np.any(change > 1e3 * np.finfo(float).eps
                                   * np.maximum(np.abs(tr.rows[-1]), 1e-300)):
             gain = float(np.max(change / tr.policy.scale(tr.rows[-1]))) / (h * delta)
-            tr.gain = gain if tr.gain is None else max(gain, 0.5 * tr.gain)
+            tr.gain = gain if tr.gain is None or _outside(h, tr.gain_h) \
+                else max(gain, 0.5 * tr.gain)
+            tr.gain_h = h
         if rounds >= MAX_RESYNC:
             return False
         moved = float(np.max(change / tr.policy.scale(tr.rows[-1])))
@@ -429,6 +441,34 @@ class Multirate:
         # again against the ones they will compute now
         tr.pending = (token, t0, h, actual, rounds + 1, first)
         return True
+
+    def _refresh_gain(self, k: int, token: Any, t: float, h: float, inputs: np.ndarray,
+                      y: np.ndarray) -> None:
+        """Measure ``k``'s gain on its step just accepted (``[t, t + h]`` from the state
+        ``token``, outputs ``y``) when the one it has was measured on a step outside
+        :data:`GAIN_SPAN` of ``h``: the step again with each input in turn one tolerance unit
+        higher (a call each), the responses added up as the worst signs of an error in every
+        input would add them (inputs can act against each other: a pendulum bar's partner angle
+        and rate), divided by ``h``, then back to where it was. A gain is otherwise only
+        measured when a pending step is corrected, which a consumer that meets its partners'
+        points never is."""
+        tr = self.tracks[k]
+        if tr.gain is None or tr.discrete or not inputs.size or not _outside(h, tr.gain_h):
+            return
+        model = self.system.models[k]
+        after = self._guard(k, t, model.save_state)
+        scale, response = tr.policy.scale(inputs), np.zeros_like(y)
+        try:
+            for i in range(inputs.shape[1]):
+                self._guard(k, t, model.restore_state, token)
+                shifted = inputs.copy()
+                shifted[:, i] += scale[:, i]
+                tr.gain_checks += 1
+                response += np.abs(self.run_step(k, t, h, shifted) - y)
+        finally:
+            self._guard(k, t, model.restore_state, after)
+        tr.gain = float(np.max(response / tr.policy.scale(y))) / h
+        tr.gain_h = h
 
     def _resynchronize(self, k: int, t0: float, moved: float, rounds: int) -> bool:
         """Roll back the consumers of ``k`` that read its provisional trajectory after ``t0``
@@ -626,6 +666,8 @@ class Multirate:
         tr.pending = (token, t, h, inputs, rounds, len(tr.times) - 1) \
             if extrapolated and not tr.discrete else None
         tr.states[len(tr.times) - 1] = token
+        if left is None:
+            self._refresh_gain(k, token, t, h, inputs, y)
         _append(tr, landing if lands else t + h, y, slope, left)
         tr.h = verdict.h_next
         if left is not None:
@@ -1138,6 +1180,13 @@ def refusals(models: dict[str, Any], interpolation: str | None = None, *,
         problems += [f"'{n}' gives no output derivatives (needed by 'hermite')"
                      for n, m in models.items() if not m.capabilities.provides_derivatives]
     return problems
+
+
+def _outside(h: float, measured_on: float) -> bool:
+    """Whether a gain measured on a step of ``measured_on`` is not to be used for ``h``
+    (:data:`GAIN_SPAN`; never measured: ``nan``, which is inside)."""
+    return not (measured_on / GAIN_SPAN <= h <= measured_on * GAIN_SPAN) \
+        and not math.isnan(measured_on)
 
 
 def _copy_policy(policy: StepPolicy) -> StepPolicy:

@@ -30,11 +30,15 @@ class ModelStats:
     replaced: int = 0
     """Multi-rate: accepted steps later dropped by a rollback or re-run in several pieces, net
     (the attempts log holds ``accepted + replaced`` accepted attempts)."""
+    gain_checks: int = 0
+    """Multi-rate: calls that measured its sensitivity to its inputs again, one per input, when
+    its steps had moved far from those it was measured on (``calls`` = accepted + rejected +
+    corrections + gain checks)."""
 
     def to_dict(self) -> dict[str, Any]:
         s = self.step_sizes
         return {"calls": self.calls, "accepted": self.accepted, "rejected": self.rejected,
-                "corrections": self.corrections,
+                "corrections": self.corrections, "gain_checks": self.gain_checks,
                 "h_min": float(s.min()) if s.size else None,
                 "h_max": float(s.max()) if s.size else None}
 

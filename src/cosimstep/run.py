@@ -375,7 +375,7 @@ class MultiRate(Scheme):
                                       np.array([h for h in tr.steps if h > 0]),
                                       np.asarray(tr.times),
                                       np.array(tr.rows).reshape(len(tr.times), -1),
-                                      tr.replaced)
+                                      tr.replaced, tr.gain_checks)
                   for tr in tracks}
         steps = np.concatenate([np.array([h for h in tr.steps if h > 0]) for tr in tracks]) \
             if tracks else np.zeros(0)
