@@ -451,7 +451,8 @@ class Multirate:
         input would add them (inputs can act against each other: a pendulum bar's partner angle
         and rate), divided by ``h``, then back to where it was. A gain is otherwise only
         measured when a pending step is corrected, which a consumer that meets its partners'
-        points never is."""
+        points never is. A sub-model that fails on a shifted step loses the measurement, not
+        the run (one that hangs still ends it)."""
         tr = self.tracks[k]
         if tr.gain is None or tr.discrete or not inputs.size or not _outside(h, tr.gain_h):
             return
@@ -465,8 +466,12 @@ class Multirate:
                 shifted[:, i] += scale[:, i]
                 tr.gain_checks += 1
                 response += np.abs(self.run_step(k, t, h, shifted) - y)
-        finally:
+        except SubModelError as exc:
+            if exc.hung:
+                raise
             self._guard(k, t, model.restore_state, after)
+            return
+        self._guard(k, t, model.restore_state, after)
         tr.gain = float(np.max(response / tr.policy.scale(y))) / h
         tr.gain_h = h
 

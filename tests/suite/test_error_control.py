@@ -107,3 +107,34 @@ def test_multirate_measures_a_stiff_receivers_gain_on_the_steps_it_takes() -> No
     for stats in result.models.values():
         assert stats.calls == stats.accepted + stats.rejected + stats.corrections \
             + stats.gain_checks
+
+
+def test_a_sub_model_failing_on_a_gain_check_loses_the_measurement_not_the_run(
+        monkeypatch) -> None:
+    from cosimstep import multirate
+    from cosimstep.errors import SubModelError
+
+    refresh, run_step = multirate.Multirate._refresh_gain, multirate.Multirate.run_step
+    checking = []
+
+    def failing_refresh(self, k, *args):
+        checking.append(k)
+        try:
+            refresh(self, k, *args)
+        finally:
+            checking.pop()
+
+    def failing_step(self, k, t, h, inputs):
+        if checking:
+            raise SubModelError(self.tracks[k].name, t, "ValueError: out of range", h)
+        return run_step(self, k, t, h, inputs)
+
+    monkeypatch.setattr(multirate.Multirate, "_refresh_gain", failing_refresh)
+    monkeypatch.setattr(multirate.Multirate, "run_step", failing_step)
+    problem = suite.get("boundary_layer")
+    system, reference = problem.build()
+    result = cs.simulate(system, 0.5, cs.make_controller("pc", None, 1e-4),
+                         cs.MasterOptions("multirate", 2), reference=reference)
+    assert result.success, result.message
+    assert result.models["fast"].gain_checks > 0
+    assert result.error.max_scaled < 1e-4
