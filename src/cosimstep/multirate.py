@@ -1190,8 +1190,8 @@ def refusals(models: dict[str, Any], interpolation: str | None = None, *,
 def _outside(h: float, measured_on: float) -> bool:
     """Whether a gain measured on a step of ``measured_on`` is not to be used for ``h``
     (:data:`GAIN_SPAN`; never measured: ``nan``, which is inside)."""
-    return not (measured_on / GAIN_SPAN <= h <= measured_on * GAIN_SPAN) \
-        and not math.isnan(measured_on)
+    return not math.isnan(measured_on) \
+        and not measured_on / GAIN_SPAN <= h <= measured_on * GAIN_SPAN
 
 
 def _copy_policy(policy: StepPolicy) -> StepPolicy:
