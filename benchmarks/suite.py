@@ -77,13 +77,19 @@ def run(job: dict) -> dict:
         else:
             controller = make_controller("pc", None, job["tol"], **job.get("options", {}))
             master = MasterOptions(MASTERS[job["kind"]], 2)
-        r = simulate(system, problem.until, controller, master, reference=reference)
-        estimate = getattr(r, "error_estimate", None)
+        # pc: the companion run beside it (estimate="richardson"), which leaves the run as it
+        # is; the summed estimate is still the controller's own
+        companion = job["kind"] == "pc"
+        r = simulate(system, problem.until, controller, master, reference=reference,
+                     estimate="richardson" if companion else "sum")
+        estimate = getattr(controller if companion else r, "error_estimate", None)
         if estimate is not None:
             estimate = float(getattr(estimate, "max_scaled", estimate))
         out.update(status=r.status, message=r.message, t_end=r.t_end, calls=r.calls_total,
                    per_model=dict(r.calls), err=r.error.max_scaled if r.error else math.nan,
                    estimate=estimate, rejected=r.steps_rejected)
+        if companion and r.error_estimate is not None:
+            out.update(richardson=float(r.error_estimate), richardson_calls=r.estimate_calls)
         if job["kind"] != "fixed":  # the own points, for the re-run estimate of the next tol
             out["points"] = {n: (m.times, m.values) for n, m in r.models.items()}
             out["events"] = sorted({float(e) for m in system.models.values()
@@ -173,14 +179,14 @@ def problem_section(name: str, rows: list[dict], line: list[dict]) -> list[str]:
     out = [f"### {name}: {p.title}", "",
            f"{p.until:g} s; classes: {', '.join(p.classes)}.", "",
            "| tol | master | status | calls | calls per sub-model | max scaled error | err/tol "
-           "| estimate (sum) | sum/err | re-run/err (its calls) | fixed calls at equal error "
-           "| wall s |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| estimate (sum) | sum/err | re-run/err (its calls) | companion/err (its calls) "
+           "| fixed calls at equal error | wall s |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: (-r["tol"], list(MASTERS).index(r["kind"]))):
         head = f"| {r['tol']:g} | {r['kind']} | {r['status']} |"
         if "calls" not in r:
-            out.append(f"{head} | | | | | | | | {_g(r['wall'], '.1f')} |")
-            out.append(f"|  | | *{r['message'][:110]}* | | | | | | | | | |")
+            out.append(f"{head} | | | | | | | | | {_g(r['wall'], '.1f')} |")
+            out.append(f"|  | | *{r['message'][:110]}* | | | | | | | | | | |")
             continue
         per = " / ".join(str(c) for c in r["per_model"].values())
         est = r.get("estimate")
@@ -191,11 +197,14 @@ def problem_section(name: str, rows: list[dict], line: list[dict]) -> list[str]:
         rerun = r.get("rerun")
         rerun_cell = "—" if rerun is None or not ok or err <= 0 else \
             f"{rerun / err:.3g} (+{r['rerun_calls']})"
+        rich = r.get("richardson")
+        rich_cell = "—" if rich is None or not ok or err <= 0 else \
+            f"{rich / err:.3g} (+{r['richardson_calls']})"
         out.append(f"{head} {r['calls']} | {per} | {_g(err)} | {_g(err / r['tol'], '.3g')} | "
-                   f"{_g(est)} | {_g(ratio, '.3g')} | {rerun_cell} | {_g(equal, '.0f')} | "
-                   f"{r['wall']:.1f} |")
+                   f"{_g(est)} | {_g(ratio, '.3g')} | {rerun_cell} | {rich_cell} | "
+                   f"{_g(equal, '.0f')} | {r['wall']:.1f} |")
         if not ok:
-            out.append(f"|  | | *{r['message'][:110]}* | | | | | | | | | |")
+            out.append(f"|  | | *{r['message'][:110]}* | | | | | | | | | | |")
     pts = [f"{r['calls']} → {_g(r['err'])}" if _ok(r) else f"T/{r['n']}: {r['status']}"
            for r in sorted(line, key=lambda r: r["n"])]
     out += ["", f"Fixed step h = T/{FIXED_FIRST} … (Gauss–Seidel, order 2), calls → max scaled "
@@ -209,10 +218,11 @@ def summary(problems: list[str], masters: list[str], adaptive: list[dict]) -> li
            f"A cell is one (problem, tol, master) run; outside = err/tol outside [{lo:g}, {hi:g}] "
            "or the run did not complete.", "",
            "| problem | master | cells outside | of which not ok | err/tol range "
-           "| sum/err range | re-run/err range |",
-           "|---|---|---|---|---|---|---|"]
+           "| sum/err range | re-run/err range | companion/err range |",
+           "|---|---|---|---|---|---|---|---|"]
     total = cells = 0
-    estimates = {"sum": [0, 0], "re-run": [0, 0]}  # [outside [0.2, 5], cells]
+    # [outside [0.2, 5], cells]
+    estimates = {"sum": [0, 0], "re-run": [0, 0], "companion": [0, 0]}
     for p in problems:
         for m in masters:
             rows = [r for r in adaptive if r["problem"] == p and r["kind"] == m]
@@ -223,18 +233,19 @@ def summary(problems: list[str], masters: list[str], adaptive: list[dict]) -> li
             cells += len(rows)
             rng = f"{min(ratios):.2g} – {max(ratios):.2g}" if ratios else "—"
             cols = []
-            for key, label in (("estimate", "sum"), ("rerun", "re-run")):
+            for key, label in (("estimate", "sum"), ("rerun", "re-run"),
+                               ("richardson", "companion")):
                 est = [r[key] / r["err"] for r in rows
                        if _ok(r) and r.get(key) is not None and r["err"] > 0]
                 estimates[label][0] += sum(1 for x in est if not 0.2 <= x <= 5.0)
                 estimates[label][1] += len(est)
                 cols.append(f"{min(est):.2g} – {max(est):.2g}" if est else "—")
             out.append(f"| {p} | {m} | {bad + failed} of {len(rows)} | {failed} | {rng} | "
-                       f"{cols[0]} | {cols[1]} |")
+                       f"{' | '.join(cols)} |")
     out += ["", f"**Cells outside [{lo:g}, {hi:g}]: {total} of {cells}.** Own estimate / "
             "measured error outside [0.2, 5]: "
             + "; ".join(f"{k} {v[0]} of {v[1]}" for k, v in estimates.items()) + " (re-run: "
-            "from the run at 10× tol, so none at the loosest tol)."]
+            "from the run at 10× tol, so none at the loosest tol; companion: `pc` only)."]
     return out
 
 
@@ -306,7 +317,11 @@ def main(argv: list[str] | None = None) -> None:
            "re-runs included); calls per sub-model in the system's order. Max scaled error = "
            "max |error| / (1 + |reference|) against the monolithic reference at the run's own "
            "communication points. Estimate = the run's own `error_estimate` (— where the "
-           "result has none). Fixed calls at equal error: the fixed-step line interpolated "
+           "result has none): the sum of its local estimates; re-run = from the run at 10× "
+           "tol (`estimate=\"rerun\"`); companion = `estimate=\"richardson\"`, the run beside "
+           "itself at doubled steps (`pc` only; the run is the same, except that the "
+           "companion's steps change the step size an adaptive internal solver starts from). "
+           "Fixed calls at equal error: the fixed-step line interpolated "
            "log–log at the run's error (— outside the line). Raw results: "
            "`benchmarks/results/suite.json`.", "", *sources(problems), "",
            *summary(problems, masters, adaptive), ""]

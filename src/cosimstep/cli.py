@@ -81,12 +81,14 @@ def main() -> None:
               "--opt rtol=..), is aimed at TOL/2; pc lets errors it measured to fade within a "
               "time M count over M only. --json reports the measured error in that norm "
               "(error.max_scaled, with a reference) and the run's own estimate (error_estimate).")
-@click.option("--estimate", type=click.Choice(["sum", "rerun"]), default="sum",
+@click.option("--estimate", type=click.Choice(["sum", "rerun", "richardson"]), default="sum",
               show_default=True,
               help="How an adaptive run estimates its own global error (error_estimate): sum "
               "of the local estimates (free; too large where errors decay, too small where "
-              "they grow), or rerun at 10x TOL first and take a ninth of the difference "
-              "(about 50 % more calls, reported as error_estimate_calls).")
+              "they grow); rerun at 10x TOL first and take a ninth of the difference; or "
+              "richardson: the same run beside it at doubled steps (controller pc, "
+              "gauss-seidel or jacobi master; the closest at tight TOL). Both cost about "
+              "50 % more calls, reported as error_estimate_calls.")
 @click.option("--seed", type=int, help="Seed of the random controller.")
 @click.option("--opt", "options", multiple=True, metavar="KEY=VALUE",
               help="Controller option, repeatable, e.g. --opt mode=reference --opt hmax=0.02.")
@@ -281,7 +283,7 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
     name = settings.pop("name", None)
     ctrl = _controller(name, settings, spec.source)
     _check_scheme(ctrl, opts, spec)
-    _check_estimate(estimate, ctrl, spec)
+    _check_estimate(estimate, ctrl, spec, opts)
     db = (out or f"{spec.name}.db") if store else None
     try:
         return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference,
@@ -383,13 +385,24 @@ def _check_scheme(ctrl: Any, opts: MasterOptions, spec: SystemSpec) -> None:
         _config_exit(ConfigurationError(problems, spec.source))
 
 
-def _check_estimate(estimate: str, ctrl: Any, spec: SystemSpec) -> None:
-    """``--estimate rerun`` needs a tolerance to multiply (exit 2 otherwise)."""
+def _check_estimate(estimate: str, ctrl: Any, spec: SystemSpec, opts: Any) -> None:
+    """``--estimate rerun`` needs a tolerance to multiply, ``richardson`` controller pc on a
+    synchronous master (exit 2 otherwise, every problem at once)."""
+    problems = []
     if estimate == "rerun" and getattr(ctrl, "policy", None) is None:
-        _config_exit(ConfigurationError(
-            [Problem("--estimate", f"'rerun' re-runs at 10x the tolerance; controller "
-                     f"'{ctrl.name}' has none", "give --tol TOL, or drop --estimate")],
-            spec.source))
+        problems.append(Problem("--estimate", f"'rerun' re-runs at 10x the tolerance; "
+                                f"controller '{ctrl.name}' has none",
+                                "give --tol TOL, or drop --estimate"))
+    if estimate == "richardson" and ctrl.name != "pc":
+        problems.append(Problem("--estimate", f"'richardson' repeats controller pc's scheme at "
+                                f"doubled steps; controller '{ctrl.name}' is not pc",
+                                "give --tol TOL without --controller, or --estimate rerun"))
+    if estimate == "richardson" and opts.name == "multirate":
+        problems.append(Problem("--estimate", "'richardson' needs one step sequence; the "
+                                "multirate master has one per sub-model",
+                                "use --master gauss-seidel or jacobi, or --estimate rerun"))
+    if problems:
+        _config_exit(ConfigurationError(problems, spec.source))
 
 
 def _report(result: SimulationResult, as_json: bool) -> None:

@@ -145,6 +145,7 @@ class ControllerLoop(_Loop):
         self.offset = 0  # the store's index of the first point held (resumed: not 0)
         self.checkpoints: Checkpoints | None = None  # when to write checkpoints, if at all
         self.resume_from: Checkpoint | None = None  # start from this instead of t0
+        self.companion: Any = None  # a companion.Companion estimating the global error
 
     def act(self, limit: float) -> None:
         """Steps until ``limit`` (a step that would pass it lands on it)."""
@@ -167,13 +168,15 @@ class ControllerLoop(_Loop):
             self.sink.add_point(0, t, y0)
         self._h = self.controller.initial_step(t, self.until)
         self._hmax = self.runner.max_step  # the sub-models' own limit
+        if self.companion is not None:
+            self.companion.begin(t, y0)
 
     def _attempt(self, landing: float, event: float) -> None:
         """One attempt at the next step; a step that would pass ``landing`` lands on it
         (``event``: the next time event or the end)."""
         controller, ctx, sink, t = self.controller, self.ctx, self.sink, self.t
         if self.budget:
-            self.budget.check(int(self.runner.calls.sum()))
+            self.budget.check(int(self.runner.calls.sum()) + self._companion_calls())
         h = self._proposed(t, landing)
         ctx.first_token = None
         try:
@@ -200,8 +203,12 @@ class ControllerLoop(_Loop):
         if at_event:
             self._restart(controller.event(t))
         ctx.push(t, attempt.y)
+        if self.companion is not None:
+            self.companion.accepted(t, attempt.y, t == landing)
         if at_event:
             ctx.restart()
+            if self.companion is not None:
+                self.companion.restart()
         self.steps.append(h)
         if sink is not None:
             self._store(t, attempt.y)
@@ -213,6 +220,9 @@ class ControllerLoop(_Loop):
             # tolerance, or an indicator already at 0 when the step began
             late = not located and h > EVENT_TOL * max(1.0, abs(t))
             self.fire(self.t, late, before)  # type: ignore[misc]
+
+    def _companion_calls(self) -> int:
+        return int(self.companion.calls.sum()) if self.companion is not None else 0
 
     def _proposed(self, t: float, landing: float) -> float:
         """The next attempt's step: the controller's, landing exactly on ``landing`` (the next
@@ -304,6 +314,8 @@ class ControllerLoop(_Loop):
         self.ctx.rows[-1][columns] = values
         self._restart(self.controller.event(self.t))
         self.ctx.restart()
+        if self.companion is not None:
+            self.companion.resync(self.t, self.ctx.rows[-1])
 
     def _restart(self, h: float | None) -> None:
         """Go on from an event with the step the controller chose (``None``: as proposed)."""

@@ -53,6 +53,7 @@ class Outcome:
     rejected: int
     error_estimate: float | None
     events: list[Event] = field(default_factory=list)
+    estimate_calls: int = 0  # calls spent on the error estimate alone (a companion run)
 
 
 class Scheme(ABC):
@@ -120,9 +121,10 @@ class Synchronous(Scheme):
     """Every sub-model takes the same communication step (one actor)."""
 
     def __init__(self, compiled: Any, t0: float, until: float, controller: Controller,
-                 master: MasterOptions, events: list[float]) -> None:
+                 master: MasterOptions, events: list[float], richardson: bool = False) -> None:
         super().__init__(compiled, t0, until, master.call_timeout)
         self.controller, self.master, self.events = controller, master, events
+        self.richardson = richardson  # estimate the global error by a companion run
         self.runner = Master(compiled, master)
         self.loop: FixedLoop | ControllerLoop | None = None
         self._checkpoints: Any = None  # see resume()
@@ -174,6 +176,11 @@ class Synchronous(Scheme):
             self.loop.checkpoints, self.loop.resume_from = self._checkpoints, self._resume_from
         if watched and isinstance(self.loop, ControllerLoop):
             self.loop.watch, self.loop.fire = self._watch, self._fire_crossed
+        if self.richardson and isinstance(self.loop, ControllerLoop):
+            from cosimstep.companion import Companion
+
+            policy = self.controller.policy  # type: ignore[attr-defined]
+            self.loop.companion = Companion(self.runner, lambda y: policy.scale(y) / policy.tol)
         discrete = [_EventActor(self, k) for k, m in enumerate(self.compiled.models)
                     if isinstance(m, DiscreteEventModel)]
         if discrete:
@@ -281,12 +288,18 @@ class Synchronous(Scheme):
         models = {n: ModelStats(int(c), accepted, rejected, 0, steps.copy(), times,
                                 values[:, compiled.output_slices[k]])
                   for k, (n, c) in enumerate(zip(compiled.names, runner.calls))}
+        estimate = getattr(self.controller, "error_estimate", None)
+        companion = getattr(self.loop, "companion", None)
+        extra = 0
+        if companion is not None:
+            extra = int(companion.calls.sum())
+            if companion.lost is None:
+                estimate = companion.estimate
         return Outcome(
             float(self.loop.t), times, values, steps, models,
             {n: int(c) for n, c in zip(compiled.names, runner.calls)},
             {n: float(s) for n, s in zip(compiled.names, runner.time_in_models)},
-            accepted, rejected, getattr(self.controller, "error_estimate", None),
-            list(self.fired))
+            accepted, rejected, estimate, list(self.fired), extra)
 
     def error(self, reference: Reference, out: Outcome,
               names: list[str]) -> tuple[ErrorReport, np.ndarray]:
@@ -454,10 +467,13 @@ class _EventActor(Actor):
 
 
 def scheme_for(compiled: Any, t0: float, until: float, controller: Controller,
-               master: MasterOptions, events: list[float]) -> Scheme:
-    """The coupling scheme of a run, chosen once."""
-    kind = MultiRate if master.name == "multirate" else Synchronous
-    return kind(compiled, t0, until, controller, master, events)
+               master: MasterOptions, events: list[float],
+               richardson: bool = False) -> Scheme:
+    """The coupling scheme of a run, chosen once (``richardson``: a synchronous run's global
+    error estimated by a companion run, :mod:`cosimstep.companion`)."""
+    if master.name == "multirate":
+        return MultiRate(compiled, t0, until, controller, master, events)
+    return Synchronous(compiled, t0, until, controller, master, events, richardson)
 
 
 class Run:
@@ -595,7 +611,8 @@ class Run:
             wall_s=wall, time_in_models=out.time_in_models,
             store=str(self.store) if self.store is not None else None, error=err,
             reference=ref_values, models=out.models, error_estimate=out.error_estimate,
-            events=out.events, coupling=self._coupling_stats(), loops=self._loop_stats())
+            estimate_calls=out.estimate_calls, events=out.events,
+            coupling=self._coupling_stats(), loops=self._loop_stats())
 
     def _coupling_stats(self) -> dict[str, Any] | None:
         """Strong coupling's passes and residuals (:mod:`cosimstep.iteration`), if iterated."""

@@ -263,6 +263,23 @@ def test_run_estimate_rerun_reports_its_estimate_and_cost(examples, tmp_path):
     assert bad.exit_code == 2 and "--estimate" in bad.output and "give --tol" in bad.output
 
 
+def test_run_estimate_richardson_reports_the_companion_and_refuses_what_it_cannot_follow(
+        examples, tmp_path):
+    linear = str(examples / "linear_coupled.toml")
+    res = CliRunner().invoke(main, ["run", linear, "--json", "--tol", "1e-3", "--until", "0.5",
+                                    "--master", "gauss-seidel", "--estimate", "richardson",
+                                    "--out", str(tmp_path / "r.db")])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.output)
+    assert summary["error_estimate"] > 0
+    assert 0 < summary["error_estimate_calls"] < summary["calls_total"]
+    bad = CliRunner().invoke(main, ["run", linear, "--tol", "1e-3", "--controller", "doubling",
+                                    "--master", "multirate", "--estimate", "richardson",
+                                    "--out", str(tmp_path / "b.db")])
+    assert bad.exit_code == 2, bad.output
+    assert "not pc" in bad.output and "one step sequence" in bad.output
+
+
 def test_user_errors_are_configuration_errors_not_tracebacks(examples, tmp_path):
     runner = CliRunner()
     linear = str(examples / "linear_coupled.toml")
