@@ -61,25 +61,27 @@ class Companion:
         self.estimate = 0.0  # the largest scaled global error estimate so far
         self.calls = np.zeros(len(master.system.models), dtype=np.int64)
         self.lost: str | None = None  # why the companion stopped, if it did
+        self.pairs = 0  # steps the companion took
+        self.fallbacks = 0  # of which taken as the run took them (a doubled step failed)
         self._carried = 0.0  # the estimate at the last restart from the run's state
         self._token: Any = None
         self._start = 0.0
-        self._pending = 0
+        self._ends: list[float] = []  # the run's step ends since the companion's last point
 
     def begin(self, t: float, y: np.ndarray) -> None:
         """Start beside the run at ``t`` (its state now, its outputs ``y``)."""
         self._token = self.master.save()
         self.ctx = _Context(self.master)
         self.ctx.push(t, y)
-        self._start, self._pending = t, 0
+        self._start, self._ends = t, []
 
     def accepted(self, t: float, y: np.ndarray, close: bool) -> None:
         """The run accepted a step ending at ``t`` with outputs ``y``; ``close``: it landed on
         an event or the end, so the pair ends here even if it is a single step."""
         if self.lost is not None:
             return
-        self._pending += 1
-        if self._pending >= self.pairing or close:
+        self._ends.append(t)
+        if len(self._ends) >= self.pairing or close:
             self._step(t, y)
 
     def restart(self) -> None:
@@ -102,9 +104,7 @@ class Companion:
         kept = master.last, master.assumed, master.iteration
         master.iteration = self._iteration
         try:
-            master.restore(self._token)
-            y = self._scheme(self._start, h)
-            self._token = master.save()
+            y = self._advance(h)
         except SubModelError as exc:
             if exc.hung:
                 raise
@@ -116,10 +116,44 @@ class Companion:
             self.calls += master.calls - calls
             master.calls[:] = calls
             master.time_in_models[:] = spent
-        self.ctx.push(t, y)
-        self._start, self._pending = t, 0
+        self._start, self._ends = t, []
         gap = float(np.max(np.abs(y_run - y) / self.scale(y_run))) if y.size else 0.0
         self.estimate = max(self.estimate, self._carried + gap / self.factor)
+
+    def _advance(self, h: float) -> np.ndarray:
+        """From the companion's state over ``h`` (the pair), its points pushed; if a sub-model
+        fails on the doubled step (a step longer than the run ever took may leave its domain),
+        the pair is taken as the run took it: it then adds no difference of its own, which is
+        better than losing the estimate."""
+        master, start = self.master, self._start
+        master.restore(self._token)
+        try:
+            ends = [start + h]
+            y = self._scheme(start, h)
+        except SubModelError as exc:
+            if exc.hung or len(self._ends) < 2:
+                raise
+            self.fallbacks += 1
+            master.restore(self._token)
+            ends, t = self._ends, start
+            for end in ends[:-1]:
+                self.ctx.push(end, self._scheme(t, end - t))
+                t = end
+            y = self._scheme(t, ends[-1] - t)
+        self.ctx.push(ends[-1], y)
+        self._token = master.save()
+        self.pairs += 1
+        return y
+
+    def caveat(self) -> str | None:
+        """What makes the estimate unreliable, if anything (the run says so)."""
+        if self.lost is not None:
+            return f"{self.lost}; error_estimate is the sum of the local estimates instead"
+        if self.fallbacks > 0.1 * max(self.pairs, 1):
+            return (f"the companion took {self.fallbacks} of its {self.pairs} steps as the run "
+                    "took them (a sub-model failed on the doubled step): error_estimate misses "
+                    "their error and is too small")
+        return None
 
     def _scheme(self, t: float, h: float) -> np.ndarray:
         """One step of what the run keeps, at the companion's (doubled) step."""

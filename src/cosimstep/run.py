@@ -19,6 +19,7 @@ import sys
 import threading
 import time
 import traceback
+import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -295,6 +296,9 @@ class Synchronous(Scheme):
             extra = int(companion.calls.sum())
             if companion.lost is None:
                 estimate = companion.estimate
+            caveat = companion.caveat()
+            if caveat is not None:
+                warnings.warn(f"estimate='richardson': {caveat}", stacklevel=2)
         return Outcome(
             float(self.loop.t), times, values, steps, models,
             {n: int(c) for n, c in zip(compiled.names, runner.calls)},

@@ -122,6 +122,26 @@ def test_a_failing_trial_step_is_a_rejection(examples, master, mode):
     assert r.error.max_scaled <= 10 * tol  # measured 2e-4 (pc, steps capped) and 5.7 tol
 
 
+def test_the_companion_takes_the_runs_steps_where_a_doubled_one_fails(examples):
+    # the lower bar fails on steps above 4 ms; the run's steps stay below, the companion's
+    # doubled ones mostly do not: those pairs are taken as the run took them, so the run goes
+    # on unchanged and the estimate is still there, but blind to most pairs (measured 0.15 of
+    # the error), which the run says
+    from cosimstep import make_controller
+
+    spec, _ = _fragile(examples, 0.004, "raise")
+    kw = dict(reference=spec.reference)
+    with pytest.warns(UserWarning, match="too small"):
+        r = simulate(spec.system, 3.0, make_controller("pc", None, 1e-4, probe_every=0),
+                     MasterOptions("gauss-seidel", 2), estimate="richardson", **kw)
+    spec2, _ = _fragile(examples, 0.004, "raise")
+    plain = simulate(spec2.system, 3.0, make_controller("pc", None, 1e-4, probe_every=0),
+                     MasterOptions("gauss-seidel", 2), **kw)
+    assert r.status == "ok", r.message
+    assert r.calls == plain.calls and (r.values == plain.values).all()
+    assert r.estimate_calls > 0 and 0 < r.error_estimate < r.error.max_scaled
+
+
 def test_a_failure_that_persists_down_to_hmin_ends_the_run(examples):
     from cosimstep import make_controller
 
