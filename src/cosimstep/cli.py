@@ -462,6 +462,9 @@ def validate(system: str) -> None:
 @click.option("--step", type=float, help="Fixed or initial step of every run (unless swept).")
 @click.option("--until", type=float, help="End time of every run (unless swept).")
 @click.option("--coupling", type=click.Choice(COUPLINGS), help="Strong coupling of every run.")
+@click.option("--estimate", type=click.Choice(["sum", "rerun", "richardson"]),
+              help="How every adaptive run estimates its own error (see `run --help`; "
+              "column error_estimate).")
 @click.option("--workers", type=click.IntRange(1), help="Worker processes of the local Dask "
               "cluster (default: one per core).")
 @click.option("--scheduler", help="Address of an existing Dask scheduler "

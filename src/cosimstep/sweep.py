@@ -237,7 +237,21 @@ def _simulate(system: str, point: Mapping[str, float], options: Mapping[str, Any
     spec, controller, master = prepare(system, point, options)
     return simulate(spec.system, spec.until, controller, master, reference=spec.reference,
                     name=spec.name, progress=False, store=store,
+                    estimate=options.get("estimate", "sum"),
                     config={"source": system, "point": dict(point), "options": dict(options)})
+
+
+def _check_estimate(estimate: str, controller: Any, master: Any) -> None:
+    """What :func:`~cosimstep.simulate` would refuse in every run, refused once up front."""
+    from cosimstep.simulate import ESTIMATES, _check_richardson
+
+    if estimate not in ESTIMATES:
+        raise ValueError(f"estimate must be one of {', '.join(ESTIMATES)}, got {estimate!r}")
+    if estimate == "rerun" and getattr(controller, "policy", None) is None:
+        raise ValueError(f"estimate 'rerun' re-runs at 10x the tolerance; controller "
+                         f"'{controller.name}' has none")
+    if estimate == "richardson":
+        _check_richardson(controller, master, None)
 
 
 class SweepTable:
@@ -315,7 +329,8 @@ def sweep(system: str | Path, params: Sequence[str | Axis] = (), *, design_kind:
     """Run ``system`` at every point of the design on Dask; return the runs as a DataFrame.
 
     ``params``: axes (``"l2=0.5,1,2"``, ``"tol=1e-6:1e-3"`` or :class:`Axis`); ``options``:
-    ``master``, ``extrapolation``, ``controller``, ``tol``, ``step``, ``until``, ``coupling``.
+    ``master``, ``extrapolation``, ``controller``, ``tol``, ``step``, ``until``, ``coupling``,
+    ``estimate`` (how each adaptive run estimates its own error: :func:`~cosimstep.simulate`).
     ``points``: the design written out instead of ``params`` (a study whose points are not a
     product of axes: each case with its own step, or ``until`` tied to a length).
     Runs already in ``out`` are not run again. ``workers``: worker processes of the local
@@ -334,7 +349,8 @@ def sweep(system: str | Path, params: Sequence[str | Axis] = (), *, design_kind:
     for p in points:
         firsts.setdefault(tuple(sorted(p)), p)
     for first in firsts.values():  # a misspelt name fails here, not in every run
-        prepare(system, first, options)
+        _, controller, master = prepare(system, first, options)
+        _check_estimate(options.get("estimate", "sum"), controller, master)
     if scheduler is not None:
         check_scheduler(scheduler)  # before anything is written
     table = SweepTable(out)

@@ -78,6 +78,10 @@ def test_the_command_line_reports_bad_names_before_running(tmp_path, examples) -
     assert res.exit_code == 2 and "LOW < HIGH" in res.output
     res = CliRunner().invoke(main, ["sweep", system, "--param", "l2=", "--out", out])
     assert res.exit_code == 2 and "NAME=V1,V2" in res.output
+    res = CliRunner().invoke(main, ["sweep", system, "--param", "l2=1", "--out", out,
+                                    "--tol", "1e-3", "--master", "multirate",
+                                    "--estimate", "richardson"])
+    assert res.exit_code == 2 and "one step sequence for every sub-model" in res.output
     import socket
 
     with socket.socket() as free:  # a port nobody listens on
@@ -88,6 +92,15 @@ def test_the_command_line_reports_bad_names_before_running(tmp_path, examples) -
     assert res.exit_code == 2 and f"no Dask scheduler answers at tcp://127.0.0.1:{port}" \
         in res.output, res.output
     assert not (tmp_path / "s.db").exists()  # nothing started, nothing written
+
+
+def test_each_run_of_a_sweep_can_estimate_its_error_by_a_companion(tmp_path, examples) -> None:
+    system = examples / "double_pendulum_slow.toml"
+    frame = sweep(system, ["tol=1e-3,1e-4"], out=tmp_path / "e.db", workers=1, until=2.0,
+                  estimate="richardson", progress=False)
+    assert list(frame["status"]) == ["ok", "ok"]
+    ratio = frame["error_estimate"] / frame["error"]  # measured 0.61, 0.52
+    assert ratio.between(0.2, 5.0).all(), list(ratio)
 
 
 def test_a_worker_killed_mid_sweep_loses_no_run(tmp_path, examples) -> None:
