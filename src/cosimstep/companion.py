@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from cosimstep.errors import SubModelError
-from cosimstep.loops import _Context
+from cosimstep.loops import LoopContext
 from cosimstep.masters import Master
 
 
@@ -54,7 +54,7 @@ class Companion:
         self.pairing = 1 if held else 2
         self.order = q + 1 if held else q + 2
         self.factor = 2.0 ** self.order - 1.0
-        self.ctx = _Context(master)
+        self.ctx = LoopContext(master)
         # strong coupling: its own accelerator (IQN-ILS keeps a Jacobian across steps), so
         # the run's iterations do not see the companion's steps
         self._iteration = copy.deepcopy(master.iteration)
@@ -71,7 +71,7 @@ class Companion:
     def begin(self, t: float, y: np.ndarray) -> None:
         """Start beside the run at ``t`` (its state now, its outputs ``y``)."""
         self._token = self.master.save()
-        self.ctx = _Context(self.master)
+        self.ctx = LoopContext(self.master)
         self.ctx.push(t, y)
         self._start, self._ends = t, []
 

@@ -33,8 +33,10 @@ trajectory the master computes (the step that ends on it is then taken again, by
 controller)."""
 
 
-class _Context:
-    """The :class:`~cosimstep.controllers.StepContext` the loop hands to controllers."""
+class LoopContext:
+    """The :class:`~cosimstep.controllers.StepContext` the loop hands to controllers: the
+    stored points extrapolation may use, and steps, saves and restores through the master (a
+    companion run, :mod:`cosimstep.companion`, keeps one of its own beside the run's)."""
 
     def __init__(self, master: Master) -> None:
         self.master = master
@@ -128,7 +130,7 @@ class ControllerLoop(_Loop):
         self.runner, self.controller = runner, controller
         self.t0, self.until, self.events = t0, until, events
         self.sink, self.bar = sink, bar
-        self.ctx = _Context(runner)
+        self.ctx = LoopContext(runner)
         self.t = t0
         self.steps: list[float] = []
         self.rejected = 0

@@ -17,27 +17,27 @@ from cosimstep.controllers.base import StepPolicy
 
 
 def _run(name: str, until: float | None, tol: float, master: cs.MasterOptions,
-         change: Callable[[loops._Context], None] | None = None) -> cs.SimulationResult:
+         change: Callable[[loops.LoopContext], None] | None = None) -> cs.SimulationResult:
     """A suite problem under `pc`; ``change`` alters the step context the loop builds (to
     reproduce the estimator as it was before a fix)."""
     problem = suite.get(name)
     system, reference = problem.build()
-    original = loops._Context.__init__
+    original = loops.LoopContext.__init__
 
     def changed(self, runner) -> None:
         original(self, runner)
         change(self)
 
     if change is not None:
-        loops._Context.__init__ = changed
+        loops.LoopContext.__init__ = changed
     try:
         return cs.simulate(system, until or problem.until, cs.make_controller("pc", None, tol),
                            master, reference=reference)
     finally:
-        loops._Context.__init__ = original
+        loops.LoopContext.__init__ = original
 
 
-def _one_ratio(ctx: loops._Context) -> None:
+def _one_ratio(ctx: loops.LoopContext) -> None:
     """Every output gets the ratio over all inputs (the estimator before the per-receiver
     one)."""
     ctx.readers = [(np.flatnonzero(ctx.consumed), slice(0, len(ctx.names)))]
@@ -113,7 +113,7 @@ def test_predictive_control_spends_the_tolerance_after_the_pump_fails() -> None:
     assert predictive.step_sizes[i] <= predictive.step_sizes[0]
 
 
-def _as_explicit(ctx: loops._Context) -> None:
+def _as_explicit(ctx: loops.LoopContext) -> None:
     """`pc` judges an iterated corrector by the predictor's end values, as it did before."""
     ctx.iterated = False
 
