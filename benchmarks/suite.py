@@ -249,6 +249,39 @@ def summary(problems: list[str], masters: list[str], adaptive: list[dict]) -> li
     return out
 
 
+FIGURE = ROOT / "docs" / "figures" / "suite_estimates.png"
+
+
+def estimate_figure(adaptive: list[dict], path: Path = FIGURE) -> None:
+    """Each run's own estimate over its measured error, against the measured err/tol: the
+    summed estimate (both masters), the re-run and the companion (``pc``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.0, 4.6))
+    kinds = [("estimate", "pc", "sum (pc)", "o"), ("estimate", "multirate", "sum (multirate)", "s"),
+             ("rerun", None, "re-run at 10× tol", "^"),
+             ("richardson", "pc", "companion (pc)", "D")]
+    for key, kind, label, marker in kinds:
+        rows = [r for r in adaptive if _ok(r) and r["err"] > 0 and r.get(key) is not None
+                and (kind is None or r["kind"] == kind)]
+        ax.scatter([r["err"] / r["tol"] for r in rows], [r[key] / r["err"] for r in rows],
+                   s=18, marker=marker, alpha=0.7, label=f"{label}: {len(rows)} runs")
+    for y in (0.2, 5.0):
+        ax.axhline(y, color="grey", lw=0.8, ls="--")
+    ax.axhline(1.0, color="black", lw=0.6)
+    ax.set(xscale="log", yscale="log", xlabel="measured error / tol",
+           ylabel="own estimate / measured error",
+           title="The run's own error estimate on the suite (dashed: 0.2 and 5)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def sources(problems: list[str]) -> list[str]:
     out = ["### Problems and sources", ""]
     for name in problems:
@@ -280,7 +313,12 @@ def main(argv: list[str] | None = None) -> None:
                     help="a controller option for the adaptive runs (e.g. predictive=true); "
                          "implies --no-write")
     ap.add_argument("--results", type=Path, default=RESULTS, help="where the raw results go")
+    ap.add_argument("--figure", action="store_true",
+                    help=f"only draw {FIGURE.relative_to(ROOT)} from the results file")
     args = ap.parse_args(argv)
+    if args.figure:
+        estimate_figure(json.loads(args.results.read_text())["adaptive"])
+        return
     problems = args.problems.split(",") if args.problems else list(suite.PROBLEMS)
     for p in problems:
         suite.get(p)  # a KeyError listing the names
@@ -324,7 +362,8 @@ def main(argv: list[str] | None = None) -> None:
            "Fixed calls at equal error: the fixed-step line interpolated "
            "log–log at the run's error (— outside the line). Raw results: "
            "`benchmarks/results/suite.json`.", "", *sources(problems), "",
-           *summary(problems, masters, adaptive), ""]
+           *summary(problems, masters, adaptive), "",
+           "![own estimate / measured error](figures/suite_estimates.png)", ""]
     for p in problems:
         out += problem_section(p, [r for r in adaptive if r["problem"] == p],
                                [r for r in lines if r["problem"] == p])
@@ -334,6 +373,7 @@ def main(argv: list[str] | None = None) -> None:
         print(text)
     else:
         write_section(ROOT / "docs" / "benchmarks.md", text, MARK_BEGIN, MARK_END)
+        estimate_figure(adaptive)
 
 
 if __name__ == "__main__":
