@@ -386,21 +386,11 @@ def _check_scheme(ctrl: Any, opts: MasterOptions, spec: SystemSpec) -> None:
 
 
 def _check_estimate(estimate: str, ctrl: Any, spec: SystemSpec, opts: Any) -> None:
-    """``--estimate rerun`` needs a tolerance to multiply, ``richardson`` controller pc on a
-    synchronous master (exit 2 otherwise, every problem at once)."""
-    problems = []
-    if estimate == "rerun" and getattr(ctrl, "policy", None) is None:
-        problems.append(Problem("--estimate", f"'rerun' re-runs at 10x the tolerance; "
-                                f"controller '{ctrl.name}' has none",
-                                "give --tol TOL, or drop --estimate"))
-    if estimate == "richardson" and ctrl.name != "pc":
-        problems.append(Problem("--estimate", f"'richardson' repeats controller pc's scheme at "
-                                f"doubled steps; controller '{ctrl.name}' is not pc",
-                                "give --tol TOL without --controller, or --estimate rerun"))
-    if estimate == "richardson" and opts.name == "multirate":
-        problems.append(Problem("--estimate", "'richardson' needs one step sequence; the "
-                                "multirate master has one per sub-model",
-                                "use --master gauss-seidel or jacobi, or --estimate rerun"))
+    """What ``--estimate`` cannot do for this run (exit 2, every problem at once)."""
+    from cosimstep.simulate import estimate_problems
+
+    problems = [Problem("--estimate", what, fix)
+                for what, fix in estimate_problems(estimate, ctrl, opts)]
     if problems:
         _config_exit(ConfigurationError(problems, spec.source))
 

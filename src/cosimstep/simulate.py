@@ -90,16 +90,11 @@ def simulate(
         result is the whole run (the points before the checkpoint read back from the store).
     """
     budget = Budget(max_wall, max_calls)
-    if estimate not in ESTIMATES:
-        raise ValueError(f"`estimate` must be one of {', '.join(ESTIMATES)}, got {estimate!r}")
-    if estimate == "richardson":
-        _check_richardson(controller, master, resume)
+    problems = estimate_problems(estimate, controller, master, resume)
+    if problems:
+        raise ValueError("`estimate`: " + "; ".join(f"{what} ({fix})" for what, fix in problems))
     looser = None
     if estimate == "rerun":
-        policy = getattr(controller, "policy", None)
-        if policy is None:
-            raise ValueError(f"estimate='rerun' needs an error-controlled controller; "
-                             f"'{controller.name}' has no tolerance")
         looser = _simulate(system, until, _loosened(controller), master, t0, None, None, name,
                            None, False, False, None, budget)
     if output_interval is not None and not (math.isfinite(output_interval)
@@ -124,19 +119,32 @@ ESTIMATES = ("sum", "rerun", "richardson")
 """How an adaptive run estimates its global error (:func:`simulate`'s ``estimate``)."""
 
 
-def _check_richardson(controller: Controller, master: MasterOptions | None,
-                      resume: int | None) -> None:
-    """The companion run repeats what ``pc`` keeps over one common step sequence."""
+def estimate_problems(estimate: str, controller: Controller, master: MasterOptions | None,
+                      resume: int | None = None) -> list[tuple[str, str]]:
+    """What keeps ``estimate`` from serving this run, each as (what, how to fix): checked by
+    :func:`simulate`, and up front by ``run`` and sweeps, which report them all at once."""
+    if estimate not in ESTIMATES:
+        return [(f"must be one of {', '.join(ESTIMATES)}, got {estimate!r}",
+                 f"choose one of {', '.join(ESTIMATES)}")]
+    out = []
+    if estimate == "rerun" and getattr(controller, "policy", None) is None:
+        out.append((f"'rerun' re-runs at 10x the tolerance; controller '{controller.name}' "
+                    "has none", "give --tol TOL, or drop --estimate"))
+    if estimate != "richardson":
+        return out
+    # the companion run repeats what pc keeps over one common step sequence
     if controller.name != "pc":
-        raise ValueError(f"estimate='richardson' repeats the default controller pc's scheme at "
-                         f"doubled steps; controller '{controller.name}' is not pc (use "
-                         "estimate='rerun')")
+        out.append((f"'richardson' repeats controller pc's scheme at doubled steps; controller "
+                    f"'{controller.name}' is not pc",
+                    "give --tol TOL without --controller, or --estimate rerun"))
     if master is not None and master.name == "multirate":
-        raise ValueError("estimate='richardson' needs one step sequence for every sub-model; "
-                         "the multirate master has one per sub-model (use estimate='rerun')")
+        out.append(("'richardson' needs one step sequence for every sub-model; the multirate "
+                    "master has one per sub-model",
+                    "use --master gauss-seidel or jacobi, or --estimate rerun"))
     if resume is not None:
-        raise ValueError("estimate='richardson' keeps a companion state that a checkpoint does "
-                         "not hold: a run with it cannot be resumed")
+        out.append(("'richardson' keeps a companion state that a checkpoint does not hold",
+                    "a run with it cannot be resumed: run it again without --resume"))
+    return out
 
 
 def _loosened(controller: Controller) -> Controller:

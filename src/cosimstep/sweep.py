@@ -243,15 +243,11 @@ def _simulate(system: str, point: Mapping[str, float], options: Mapping[str, Any
 
 def _check_estimate(estimate: str, controller: Any, master: Any) -> None:
     """What :func:`~cosimstep.simulate` would refuse in every run, refused once up front."""
-    from cosimstep.simulate import ESTIMATES, _check_richardson
+    from cosimstep.simulate import estimate_problems
 
-    if estimate not in ESTIMATES:
-        raise ValueError(f"estimate must be one of {', '.join(ESTIMATES)}, got {estimate!r}")
-    if estimate == "rerun" and getattr(controller, "policy", None) is None:
-        raise ValueError(f"estimate 'rerun' re-runs at 10x the tolerance; controller "
-                         f"'{controller.name}' has none")
-    if estimate == "richardson":
-        _check_richardson(controller, master, None)
+    problems = estimate_problems(estimate, controller, master)
+    if problems:
+        raise ValueError("estimate: " + "; ".join(f"{w} ({fix})" for w, fix in problems))
 
 
 class SweepTable:
