@@ -51,13 +51,17 @@ def _weights(s: list[float]) -> list[list[float]]:
 
     Lagrange form: derivative k at 0 of the basis polynomial of point i is
     k! * coef_k(prod_{j != i} (x - s_j)) / prod_{j != i} (s_i - s_j). Pure-Python floats are
-    much faster than a linear solve for the <= 4 points used here (this runs every step). One
-    to four points (extrapolation orders 0-2 and the corrector's cubic) are written out: the
-    same floating-point operations in the same order as :func:`_weights_loop` (bit-identical
-    results, compared in tests/orchestration/test_extrapolation_weights.py), without its list
-    building, which cost about half of a Gauss-Seidel step of two small FMUs at order 2.
+    much faster than a linear solve for the <= 5 points used here (this runs every step). One
+    to five points (extrapolation orders 0-2, the corrector's cubic, and the quartic ``pc``
+    judges the corrector by) are written out: the same floating-point operations in the same
+    order as :func:`_weights_loop` (bit-identical results, compared in
+    tests/orchestration/test_extrapolation_weights.py), without its list building, which cost
+    about half of a Gauss-Seidel step of two small FMUs at order 2.
     """
     n = len(s)
+    if n == 5:  # the predictor-corrector's quartic, against which it judges the corrector
+        s0, s1, s2, s3, s4 = s
+        return _five(s0, s1, s2, s3, s4)
     if n == 4:  # the predictor-corrector's cubic
         s0, s1, s2, s3 = s
         return _four(s0, s1, s2, s3)
@@ -96,6 +100,20 @@ def _four(s0: float, s1: float, s2: float, s3: float) -> list[list[float]]:
     return [[c[k] for c in columns] for k in range(4)]
 
 
+def _five(s0: float, s1: float, s2: float, s3: float, s4: float) -> list[list[float]]:
+    columns = []
+    for si, sa, sb, sc, sd in ((s0, s1, s2, s3, s4), (s1, s0, s2, s3, s4), (s2, s0, s1, s3, s4),
+                               (s3, s0, s1, s2, s4), (s4, s0, s1, s2, s3)):
+        p0, p1 = 0.0 - sa * 1.0, 1.0 - sa * 0.0  # (x - sa)
+        q0, q1, q2 = 0.0 - sb * p0, p0 - sb * p1, p1 - sb * 0.0  # times (x - sb)
+        r0, r1, r2, r3 = 0.0 - sc * q0, q0 - sc * q1, q1 - sc * q2, q2 - sc * 0.0  # (x - sc)
+        v0, v1, v2, v3, v4 = (0.0 - sd * r0, r0 - sd * r1, r1 - sd * r2, r2 - sd * r3,
+                              r3 - sd * 0.0)  # times (x - sd)
+        d = 1.0 * (si - sa) * (si - sb) * (si - sc) * (si - sd)
+        columns.append((v0 / d, v1 / d, v2 * 2 / d, v3 * 6 / d, v4 * 24 / d))
+    return [[c[k] for c in columns] for k in range(5)]
+
+
 def _weights_loop(s: list[float]) -> list[list[float]]:
     """:func:`_weights` for any number of points."""
     n_points = len(s)
@@ -121,6 +139,26 @@ def evaluate(coefficients: np.ndarray, dt: float) -> np.ndarray:
     for k in range(1, coefficients.shape[0]):
         term *= dt / k
         result = result + term * coefficients[k]
+    return result
+
+
+def evaluate_at(coefficients: np.ndarray, dts: np.ndarray) -> np.ndarray:
+    """:func:`evaluate` at each of ``dts`` at once, for one polynomial (rows of coefficients,
+    columns of signals) or a stack of them (``(curves, rows, signals)``, shorter ones padded
+    with zero rows): ``[..., i, :]`` is the value at ``t0 + dts[i]``.
+
+    The same floating-point operations in the same order as one :func:`evaluate` per offset
+    and curve, broadcast (bit for bit: a padded zero row adds exact zeros; the estimators
+    compare curves at several points of a step, and one call per point cost more than the
+    sums themselves).
+    """
+    dts = np.asarray(dts, dtype=float)
+    c = np.asarray(coefficients, dtype=float)
+    result = np.repeat(c[..., :1, :], len(dts), axis=-2)
+    term = np.ones(len(dts))
+    for k in range(1, c.shape[-2]):
+        term = term * (dts / k)
+        result = result + term[:, None] * c[..., k:k + 1, :]
     return result
 
 

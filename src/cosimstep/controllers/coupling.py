@@ -34,7 +34,7 @@ import numpy as np
 
 from cosimstep.controllers.base import Attempt, Controller, StepContext, StepPolicy
 from cosimstep.controllers.memory import ErrorMemory
-from cosimstep.extrapolation import evaluate, taylor_coefficients
+from cosimstep.extrapolation import _weights, evaluate_at
 
 
 def _effective_order(ctx: StepContext) -> int:
@@ -278,20 +278,27 @@ class PredictorCorrector(_PolicyController):
         if len(ctx.times) < q + 2:
             return ratio  # no older point to judge the corrector by: count the predictor's error
         fresh = ~ctx.predicted[cols] | ctx.iterated
-        times, hist = list(ctx.times), ctx.history[:, cols]
-        offsets = h * _NODES
-
-        def curve(n_old: int, end: np.ndarray | None) -> np.ndarray:
-            pts = times[len(times) - n_old:] + ([t + h] if end is not None else [])
-            rows = hist[len(hist) - n_old:]
-            if end is not None:
-                rows = np.vstack([rows, end[cols]])
-            c = taylor_coefficients(pts, rows, t, len(pts) - 1)
-            return np.array([evaluate(c, dt) for dt in offsets])
-
-        u_p = np.where(fresh, curve(q, y_p), curve(q + 1, None))
-        u_c = np.where(fresh, curve(q + 1, y_c), curve(q + 1, y_p))
-        u_best = curve(q + 2, y_c)
+        n = q + 2
+        hist = ctx.history[-n:, cols]
+        # the five curves over the step (rows: the last n stored points, then the predictor's
+        # and the corrector's new values); each is the polynomial through its points, in the
+        # Taylor form the master steps with: the same operations as taylor_coefficients and
+        # evaluate, so the estimate is bit for bit the one each curve built on its own gave
+        values = np.vstack([hist, y_p[cols], y_c[cols]])
+        s = [float(ti) - t for ti in ctx.times[-n:]]
+        s_end = float(t + h) - t
+        coefficients = np.zeros((5, n + 1, len(cols)))
+        for i, rows in enumerate(([*range(2, n), n],            # u_p, read fresh
+                                  list(range(1, n)),            # u_p, extrapolated
+                                  [*range(1, n), n + 1],        # u_c, read fresh
+                                  [*range(1, n), n],            # u_c, through the predictor's
+                                  [*range(n), n + 1])):         # u_best
+            points = [s[r] if r < n else s_end for r in rows]
+            coefficients[i, :len(rows)] = np.array(_weights(points)) @ values[rows]
+        u = evaluate_at(coefficients, h * _NODES)
+        u_p = np.where(fresh, u[0], u[1])
+        u_c = np.where(fresh, u[2], u[3])
+        u_best = u[4]
         scale = self.policy.scale(hist[-1])
         moved = np.zeros(len(ratio))
         left = np.zeros(len(ratio))
