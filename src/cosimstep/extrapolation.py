@@ -154,11 +154,14 @@ def evaluate_at(coefficients: np.ndarray, dts: np.ndarray) -> np.ndarray:
     """
     dts = np.asarray(dts, dtype=float)
     c = np.asarray(coefficients, dtype=float)
-    result = np.repeat(c[..., :1, :], len(dts), axis=-2)
-    term = np.ones(len(dts))
-    for k in range(1, c.shape[-2]):
-        term = term * (dts / k)
-        result = result + term[:, None] * c[..., k:k + 1, :]
+    order = c.shape[-2] - 1
+    if order == 0:
+        return np.repeat(c[..., :1, :], len(dts), axis=-2)
+    # term k at each offset: ((dt/1)·(dt/2))···(dt/k), the running product evaluate forms
+    terms = np.cumprod(dts[:, None] / np.arange(1, order + 1), axis=1)
+    result = c[..., :1, :] + terms[:, :1] * c[..., 1:2, :]
+    for k in range(2, order + 1):
+        result = result + terms[:, k - 1:k] * c[..., k:k + 1, :]
     return result
 
 

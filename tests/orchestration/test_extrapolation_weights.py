@@ -82,3 +82,26 @@ def test_step_derivative_weights_are_the_general_steps_derivatives() -> None:
             assert np.allclose(got, expected, rtol=0, atol=1e-13)
     assert step_derivative_weights(2) == [[0.5, -2.0, 1.5], [1.0, -2.0, 1.0]]
     assert step_derivative_weights(1, True) == [[-1.0, 1.0]]
+
+
+def test_evaluating_at_many_offsets_is_evaluating_at_each_bit_for_bit() -> None:
+    """``evaluate_at`` (one polynomial or a stack, several offsets) gives the very floats one
+    ``evaluate`` per offset and polynomial gives: the step control's estimates use it, and any
+    change of rounding there moves a whole adaptive run."""
+    import numpy as np
+
+    from cosimstep.extrapolation import evaluate, evaluate_at
+
+    rng = np.random.default_rng(8)
+    for rows in range(1, 6):
+        for _ in range(500):
+            dts = rng.uniform(-1, 1, size=4) * 10.0 ** rng.uniform(-7, 1)
+            one = rng.normal(size=(rows, 3)) * 10.0 ** rng.uniform(-5, 5)
+            expected = np.array([evaluate(one, dt) for dt in dts])
+            assert np.array_equal(evaluate_at(one, dts), expected)
+            stack = rng.normal(size=(5, rows, 2)) * 10.0 ** rng.uniform(-5, 5)
+            got = evaluate_at(stack, dts)
+            for i in range(5):
+                expected = np.array([evaluate(stack[i], dt) for dt in dts])
+                assert [v.hex() for v in got[i].ravel().tolist()] == \
+                    [v.hex() for v in expected.ravel().tolist()]
