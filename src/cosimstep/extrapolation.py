@@ -11,6 +11,7 @@ input polynomial, the coupling error of a step shrinks like ``h^(p+2)`` and the 
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -42,8 +43,17 @@ def taylor_coefficients(times: Sequence[float], values: np.ndarray, t0: float,
     out = np.zeros((order + 1, values.shape[1]))
     rows = values[-n_points:]
     s = [float(ti) - t0 for ti in times[-n_points:]]
-    out[:n_points] = np.array(_weights(s)) @ rows
+    out[:n_points] = weight_matrix(tuple(s)) @ rows
     return out
+
+
+@functools.lru_cache(maxsize=64)
+def weight_matrix(s: tuple[float, ...]) -> np.ndarray:
+    """:func:`_weights` as a read-only array, remembered: within one step the master's passes
+    and ``pc``'s estimate fit curves through the same points two to four times."""
+    w = np.array(_weights(list(s)))
+    w.flags.writeable = False
+    return w
 
 
 def _weights(s: list[float]) -> list[list[float]]:

@@ -34,7 +34,7 @@ import numpy as np
 
 from cosimstep.controllers.base import Attempt, Controller, StepContext, StepPolicy
 from cosimstep.controllers.memory import ErrorMemory
-from cosimstep.extrapolation import _weights, evaluate_at
+from cosimstep.extrapolation import evaluate_at, weight_matrix
 
 
 def _effective_order(ctx: StepContext) -> int:
@@ -294,7 +294,7 @@ class PredictorCorrector(_PolicyController):
                                   [*range(1, n), n],            # u_c, through the predictor's
                                   [*range(n), n + 1])):         # u_best
             points = [s[r] if r < n else s_end for r in rows]
-            coefficients[i, :len(rows)] = np.array(_weights(points)) @ values[rows]
+            coefficients[i, :len(rows)] = weight_matrix(tuple(points)) @ values[rows]
         u = evaluate_at(coefficients, h * _NODES)
         u_p = np.where(fresh, u[0], u[1])
         u_c = np.where(fresh, u[2], u[3])
