@@ -149,6 +149,9 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
     """
     bad = _flag_problems(until, max_wall, max_calls, output_interval, output_steps,
                          call_timeout)
+    if verbose and quiet:
+        bad.append(Problem("-v / -q", "ask for more and for less output at once",
+                           "leave out one of them"))
     bad += _checkpoint_problems(checkpoint_every, checkpoint_steps, resume_db, run_id, out,
                                 no_store, output_interval)
     if bad:
@@ -216,6 +219,12 @@ def _checkpoint_problems(every: float, steps: int | None, resume_db: str | None,
     if resume_db is not None and (no_store or out is not None or output_interval is not None):
         bad.append(Problem("--resume", "continues the run in DB, storing every point there",
                            "leave out --out, --no-store and --output-interval"))
+    if resume_db is not None and not Path(resume_db).is_file():
+        bad.append(Problem("--resume", f"no results store '{resume_db}'",
+                           "name the .db a checkpointed run wrote (see `cosimstep runs DB`)"))
+    if out is not None and no_store:
+        bad.append(Problem("--out", "names the results store, --no-store keeps none",
+                           "leave out one of them"))
     return bad
 
 
@@ -279,6 +288,11 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
          coupling: dict[str, Any] | None = None) -> SimulationResult:
     opts = _master_options(spec, master, extrapolation, interpolation, resync, call_timeout,
                            coupling)
+    if resync is not None and opts.name != "multirate":
+        _config_exit(ConfigurationError([Problem(
+            "--resync", f"chooses how the multirate master goes back to an event; this run's "
+            f"master is '{opts.name}'", "add --master multirate or leave out --resync")],
+            "the command line"))
     settings = _controller_settings(spec, controller, step, tol, seed, options)
     name = settings.pop("name", None)
     ctrl = _controller(name, settings, spec.source)
@@ -312,8 +326,11 @@ def _controller(name: str | None, settings: dict[str, Any], source: str) -> Any:
         _config_exit(ConfigurationError([Problem("controller", _plain_type_error(exc), fix)],
                                         source))
     except ValueError as exc:
-        _config_exit(ConfigurationError(
-            [Problem("controller", str(exc), "see `cosimstep run --help`")], source))
+        fix = ("correct it where it is set: --tol, --step, --opt KEY=VALUE, or the file's "
+               "[controller] table") + (f"; options of '{name}': "
+                                        f"{', '.join(controller_options(name))}"
+                                        if name in CONTROLLERS else "")
+        _config_exit(ConfigurationError([Problem("controller", str(exc), fix)], source))
     raise AssertionError  # unreachable: _config_exit exits
 
 
@@ -408,12 +425,15 @@ def _report(result: SimulationResult, as_json: bool) -> None:
     if "error" in summary:
         e = summary["error"]
         click.echo(f"error vs monolithic reference: max {e['max_abs']:.3e}, rmse {e['rmse']:.3e}"
-                   f", max |e|/(1+|y|) {e['max_scaled']:.3e}")
+                   f", max |e|/(1+|y|) {e['max_scaled']:.3e}"
+                   + (f" at each sub-model's own points ({e['grid_max_scaled']:.3e} on the "
+                      "common grid, interpolated between them)" if "grid_max_scaled" in e else ""))
     if summary.get("error_estimate") is not None:
         cost = summary["error_estimate_calls"]
         click.echo(f"estimated error (own, no reference): {summary['error_estimate']:.3e}"
                    + (f" (estimate cost {cost} calls)" if cost else ""))
-    click.echo(f"wall: {summary['wall_s']:.2f} s   store: {summary['store']}")
+    click.echo(f"wall: {summary['wall_s']:.2f} s   store: "
+               f"{summary['store'] or 'none (--no-store)'}")
 
 
 @main.command()

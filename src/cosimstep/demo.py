@@ -78,7 +78,15 @@ def plot_demo(runs: list[DemoRun], path: Path) -> Path:
         r = run.result
         label = f"{run.label}: {r.calls_total} calls, max error {r.error.max_scaled:.1e}"
         _steps(steps, r, colour, run.label)
-        errors.semilogy(r.times[1:], _error(r)[1:], color=colour, lw=1, label=label)
+        if r.error.grid_max_scaled is None:
+            errors.semilogy(r.times[1:], _error(r)[1:], color=colour, lw=1, label=label)
+            continue
+        # multirate: the error at each sub-model's own points, the ones its max is taken
+        # over; between them its values are interpolated (the grid's max is in the legend)
+        label += f" at own points ({r.error.grid_max_scaled:.1e} interpolated between them)"
+        for style, (name, times, error) in zip(("-", "--", ":"), _own_errors(r)):
+            errors.semilogy(times[1:], error[1:], color=colour, lw=1, ls=style,
+                            label=f"{label}: {name}" if style == "-" else f"{run.label}: {name}")
     for ax in (states, steps, errors):
         ax.axvspan(1.0, 2.0, color="0.9", zorder=0)
         ax.grid(alpha=0.3)
@@ -100,6 +108,26 @@ def _steps(ax, result: SimulationResult, colour: str, label: str) -> None:
                     ls=style, label=f"{label}: {name}")
         return
     ax.step(result.times[:-1], result.step_sizes, where="post", color=colour, lw=1, label=label)
+
+
+def _own_errors(result: SimulationResult) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Per sub-model of a multirate result: its own points' times and largest scaled error
+    over its mapped outputs (the reference read from the result's grid, the union of every
+    sub-model's own points)."""
+    mapped = result.error.per_variable if result.error else {}
+    out = []
+    for name, stats in result.models.items():
+        outputs = [n for n in result.names if n.startswith(f"{name}.")]
+        own = [n for n in outputs if n in mapped]
+        if not own or result.reference is None:
+            continue
+        cols = [outputs.index(n) for n in own]
+        ref = np.column_stack([np.interp(stats.times, result.times,
+                                         result.reference[:, list(mapped).index(n)])
+                               for n in own])
+        error = np.max(np.abs(stats.values[:, cols] - ref) / (1.0 + np.abs(ref)), axis=1)
+        out.append((name, np.asarray(stats.times), error))
+    return out
 
 
 def _error(result: SimulationResult) -> np.ndarray:

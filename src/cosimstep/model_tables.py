@@ -22,7 +22,7 @@ from cosimstep.adapters.ode import ParameterSchedule, make_solver
 from cosimstep.errors import Problem
 from cosimstep.events import KINDS as EVENT_KINDS
 from cosimstep.models import REGISTRY
-from cosimstep.spec import Changes, HeaderSection, Section, parse
+from cosimstep.spec import SOLVER_FIX, Changes, HeaderSection, Section, parse
 from cosimstep.submodel import SubModel
 
 
@@ -93,12 +93,11 @@ def build_model(name: str, sec: ModelSection, header: HeaderSection,
     for _, vals in changes:
         used.update(k for k in vals if k in kind.parameters)
     start = {**header.start, **sec.start}
+    used.update(f"start.{k}" for k in header.start if k in kind.start)
     try:
         solver = make_solver(sec.solver if sec.solver is not None else header.solver)
     except (TypeError, ValueError) as exc:
-        problems.append(Problem(f"{where}.solver", str(exc),
-                                "use {method = 'rk4', substeps = n | max_dt = dt} or "
-                                "{method = 'RK45', rtol = .., atol = ..}"))
+        problems.append(Problem(f"{where}.solver", str(exc), SOLVER_FIX))
         return None
     return kind.build(ParameterSchedule(params, own_changes), start, solver)
 

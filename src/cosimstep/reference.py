@@ -101,10 +101,20 @@ class ErrorReport:
     per_variable: dict[str, float]
     points: int
     max_scaled: float = float("nan")
+    grid_max_scaled: float | None = None
+    """Multi-rate runs only: ``max_scaled`` of the common grid, where each sub-model's values
+    between its own points are interpolated (what ``SimulationResult.values`` holds). The
+    other fields are at each sub-model's own points, what the sub-models computed; a consumer
+    that reacts slowly lets its partner take steps whose in-between values are interpolated
+    less accurately than its points (toggled pendulum, tol 1e-4: 7.0e-5 at the own points,
+    3.4e-4 on the grid)."""
 
     def to_dict(self) -> dict:
-        return {"max_abs": self.max_abs, "rmse": self.rmse, "max_scaled": self.max_scaled,
-                "per_variable": self.per_variable, "points": self.points}
+        out = {"max_abs": self.max_abs, "rmse": self.rmse, "max_scaled": self.max_scaled,
+               "per_variable": self.per_variable, "points": self.points}
+        if self.grid_max_scaled is not None:
+            out["grid_max_scaled"] = self.grid_max_scaled
+        return out
 
 
 def error_report(times: np.ndarray, values: np.ndarray, reference: np.ndarray,

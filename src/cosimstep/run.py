@@ -406,7 +406,13 @@ class MultiRate(Scheme):
     def error(self, reference: Reference, out: Outcome,
               names: list[str]) -> tuple[ErrorReport, np.ndarray]:
         reference.solve(self.t0, float(max(tr.t for tr in self.race.tracks)))
-        return self._own_point_error(reference, names), reference.values(out.times, names)
+        ref_values = reference.values(out.times, names)
+        report = self._own_point_error(reference, names)
+        cols = [self.compiled.output_names.index(n) for n in names]
+        if cols and len(out.times):
+            grid = np.abs(out.values[:, cols] - ref_values) / (1.0 + np.abs(ref_values))
+            report = dataclasses.replace(report, grid_max_scaled=float(grid.max()))
+        return report, ref_values
 
     def _own_point_error(self, reference: Reference, names: list[str]) -> ErrorReport:
         """The error against the reference at each sub-model's own points (no interpolation)."""

@@ -17,7 +17,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from cosimstep.adapters.ode import ParameterSchedule
+from cosimstep.adapters.ode import ParameterSchedule, make_solver
 from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.masters import DEFAULT_CALL_TIMEOUT, MasterOptions
 from cosimstep.models import REGISTRY
@@ -26,6 +26,9 @@ from cosimstep.system import System
 
 Changes = list[tuple[float, dict[str, float]]]
 """Parameter changes: ``(time, {parameter: value})``."""
+
+SOLVER_FIX = ("use {method = 'rk4', substeps = n | max_dt = dt} or "
+              "{method = 'RK45', rtol = .., atol = ..}")
 
 
 class Section(BaseModel):
@@ -100,8 +103,18 @@ def parse(cls: type[BaseModel], body: Any, where: str, problems: list[Problem]) 
 
 def parse_header(settings: Mapping[str, Any], where: str,
                  problems: list[Problem]) -> HeaderSection:
-    """The header keys of ``settings`` (defaults where they did not parse)."""
-    return parse(HeaderSection, dict(settings), where, problems) or HeaderSection()
+    """The header keys of ``settings`` (defaults where they did not parse).
+
+    The shared ``solver`` is checked here, once: every model that uses it would otherwise
+    report the same problem under its own name. A bad one is reported and replaced by the
+    default, so the models still build and their own problems are found too."""
+    header = parse(HeaderSection, dict(settings), where, problems) or HeaderSection()
+    try:
+        make_solver(header.solver)
+    except (TypeError, ValueError) as exc:
+        problems.append(Problem(f"{where}.solver", str(exc), SOLVER_FIX))
+        header = header.model_copy(update={"solver": HeaderSection().solver})
+    return header
 
 
 def build_reference(sec: ReferenceSection, header: HeaderSection, changes: Changes,
@@ -115,6 +128,7 @@ def build_reference(sec: ReferenceSection, header: HeaderSection, changes: Chang
         return None
     shared = {k: v for k, v in header.parameters.items() if k in kind.parameters}
     used.update(shared)
+    used.update(f"start.{k}" for k in header.start if k in kind.start)
     own_changes = [(t, {k: v for k, v in vals.items() if k in kind.parameters})
                    for t, vals in changes]
     model = kind.build(ParameterSchedule({**kind.parameters, **shared}, own_changes),
@@ -153,11 +167,37 @@ def _unused(header: HeaderSection, changes: Changes, used: set[str], loc: Callab
         if key not in used:
             problems.append(Problem(loc(f"parameters.{key}"), "no model uses this parameter",
                                     "check the spelling or remove it"))
+    for key in header.start:  # built-in models and the reference read shared start values
+        if f"start.{key}" not in used:
+            problems.append(Problem(loc(f"start.{key}"), "no model reads this start value",
+                                    "check the spelling, or give it to one model: "
+                                    "[models.<name>] start = {...}"))
     for i, (_, values) in enumerate(changes):
         for key in values:
             if key not in used:
                 problems.append(Problem(loc(f"parameter_changes[{i}].set.{key}"),
                                         "no model uses this parameter", "check the spelling"))
+
+
+def _check_controller(sec: ControllerSection, where: str, problems: list[Problem]) -> None:
+    """The file's ``[controller]`` built once, so that a bad value in it is listed with the
+    file's other problems (not found alone, after they were fixed)."""
+    from cosimstep.controllers import CONTROLLERS, controller_options, make_controller
+
+    settings = sec.model_dump(exclude_none=True)
+    name = settings.pop("name", None)
+    if not settings or ("step" not in settings and "tol" not in settings
+                        and name in (None, "fixed")):
+        return  # nothing to check, or a step the command line may still give
+    try:
+        make_controller(name, settings.pop("step", None), settings.pop("tol", None), **settings)
+    except (TypeError, ValueError) as exc:
+        text = str(exc)
+        if "unexpected keyword argument" in text:
+            text = f"unknown option {text.rpartition('argument ')[2]}"
+        known = f"; options of '{name}': {', '.join(controller_options(name))}" \
+            if name in CONTROLLERS else ""
+        problems.append(Problem(where, text, f"correct the [controller] table{known}"))
 
 
 @dataclass
@@ -187,6 +227,8 @@ def finish(settings: Mapping[str, Any], header: HeaderSection, system: System, o
     master = _master(settings.get("master", {}), system, loc("master"), problems)
     controller = parse(ControllerSection, settings.get("controller", {}), loc("controller"),
                        problems)
+    if controller is not None:
+        _check_controller(controller, loc("controller"), problems)
     ref = None
     if "reference" in settings:
         sec = parse(ReferenceSection, settings["reference"], loc("reference"), problems)

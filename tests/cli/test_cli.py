@@ -291,7 +291,29 @@ def test_user_errors_are_configuration_errors_not_tracebacks(examples, tmp_path)
     (tmp_path / "neg.toml").write_text(
         'until = 1.0\n[models.a]\ntype = "linear_coupled.slow"\n'
         '[controller]\nname = "fixed"\nstep = -0.1\n')
-    cases.append((["validate", str(tmp_path / "neg.toml")], "`step` must be positive"))
+    cases.append((["validate", str(tmp_path / "neg.toml")],
+                  "`step` must be a positive finite number"))
+    # values the run once took without a word (a new user's trial, issue 13's standards)
+    cases += [
+        (["run", linear, "--tol", "inf"], "`tol` must be a positive finite number, got inf"),
+        (["run", linear, "--tol", "1e-3", "--opt", "predictive=maybe"],
+         "`predictive` must be true or false, got 'maybe'"),
+        (["run", linear, "--tol", "1e-3", "--opt", "hmax=abc"], "`hmax` must be a number"),
+        (["run", linear, "--start", "theta9=0.3"], "start.theta9: no model reads this start"),
+        (["run", linear, "--master", "gauss-seidel", "--resync", "complete"],
+         "this run's master is 'gauss-seidel'"),
+        (["run", linear, "--out", str(tmp_path / "o.db"), "--no-store"],
+         "--out: names the results store, --no-store keeps none"),
+        (["run", linear, "-v", "-q"], "ask for more and for less output at once"),
+        (["run", linear, "--resume", str(tmp_path / "nope.db")], "no results store"),
+    ]
+    (tmp_path / "solver.toml").write_text(
+        'until = 1.0\nsolver = { method = "rk4", max_dtt = 0.01, substeps = -3 }\n'
+        '[models.a]\ntype = "linear_coupled.slow"\n[models.b]\ntype = "linear_coupled.slow"\n'
+        '[controller]\nname = "pc"\ntol = -1\n')
+    cases.append((["validate", str(tmp_path / "solver.toml")],
+                  "[top level].solver: rk4: no option 'max_dtt' (its options: substeps, max_dt); "
+                  "'substeps' must be a whole number >= 1, got -3"))
     db = tmp_path / "r.db"
     runner.invoke(main, ["run", linear, "--until", "0.05", "--step", "0.01", "--out", str(db)])
     cases.append((["plot", str(db), "-o", str(tmp_path / "x.jpg2")],
@@ -300,6 +322,11 @@ def test_user_errors_are_configuration_errors_not_tracebacks(examples, tmp_path)
         res = runner.invoke(main, args)
         assert res.exit_code == 2, (args, res.output)
         assert expected in res.output and "Traceback" not in res.output, res.output
+    assert not (tmp_path / "nope.db").exists()  # a refused --resume leaves no empty store
+    # the shared solver is reported once, not once per model, beside the [controller] problem
+    res = runner.invoke(main, ["validate", str(tmp_path / "solver.toml")])
+    assert "2 problem(s)" in res.output and res.output.count("max_dtt") == 1
+    assert "controller: `tol` must be a positive finite number" in res.output
 
 
 def test_one_bad_model_causes_no_follow_on_errors(tmp_path):

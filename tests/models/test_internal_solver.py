@@ -77,3 +77,18 @@ def test_each_sub_model_has_its_own_memory_and_the_options_reach_scipy() -> None
     assert make_solver({"method": "radau"}).method == "Radau"
     with pytest.raises(ValueError, match="unknown solver method 'euler'"):
         make_solver({"method": "euler"})
+
+
+def test_a_configured_solver_names_every_bad_option() -> None:
+    """A negative step count or local step once ran and returned an order-one error."""
+    with pytest.raises(ValueError) as bad:
+        make_solver({"method": "rk4", "substeps": 0, "max_dt": -0.05})
+    assert str(bad.value) == ("rk4: 'substeps' must be a whole number >= 1, got 0; 'max_dt' "
+                              "must be a positive number, got -0.05")
+    with pytest.raises(ValueError) as bad:
+        make_solver({"method": "radau", "rtol": float("inf"), "carry": "yes", "jac": 1})
+    assert str(bad.value) == ("Radau: 'rtol' must be a positive number, got inf; 'carry' must "
+                              "be true or false; no option 'jac' (its options: rtol, atol, "
+                              "first_step, max_step, carry)")
+    assert make_solver({"method": "rk4", "max_dt": 1e-3}).max_dt == 1e-3
+    assert make_solver({"method": "BDF", "max_step": float("inf")}).method == "BDF"

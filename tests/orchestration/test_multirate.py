@@ -192,6 +192,11 @@ def test_each_submodels_own_points_in_the_result_and_the_store(mixed, tmp_path) 
         ref = mixed.reference.values(stats.times, [f"{name}.theta", f"{name}.omega"])
         worst = max(worst, float(np.max(np.abs(stats.values - ref) / (1 + np.abs(ref)))))
     assert worst == result.error.max_scaled
+    # the common grid interpolates between the own points: its error is reported apart
+    ref = mixed.reference.values(result.times, result.names)
+    grid = float(np.max(np.abs(result.values - ref) / (1 + np.abs(ref))))
+    assert result.error.grid_max_scaled == grid >= result.error.max_scaled
+    assert result.error.to_dict()["grid_max_scaled"] == grid
     stored = read_run(db)
     t, v = stored.own_points["bar2.omega"]
     assert np.array_equal(t, fast.times) and np.array_equal(v, fast.values[:, 1])

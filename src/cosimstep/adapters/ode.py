@@ -145,6 +145,12 @@ class RK4:
     substeps: int = 1
     max_dt: float | None = None
 
+    def __post_init__(self) -> None:
+        if not (isinstance(self.substeps, int) and self.substeps >= 1):
+            raise ValueError(f"RK4 needs substeps >= 1, got {self.substeps!r}")
+        if self.max_dt is not None and not self.max_dt > 0:
+            raise ValueError(f"RK4 needs max_dt > 0, got {self.max_dt!r}")
+
     def advance(self, f: Callable[[float, np.ndarray], np.ndarray], t0: float, t1: float,
                 x: np.ndarray, jac: Callable[[float, np.ndarray], np.ndarray] | None = None,
                 ) -> np.ndarray:
@@ -248,17 +254,46 @@ METHODS = {"RK45": RK45, "RK23": RK23, "DOP853": DOP853, "Radau": Radau, "BDF": 
            "LSODA": LSODA}
 
 
+SOLVER_OPTIONS = {"rk4": {"substeps": "int", "max_dt": "step"},
+                  "scipy": {"rtol": "tolerance", "atol": "tolerance", "first_step": "step",
+                            "max_step": "step", "carry": "bool"}}
+"""The options of a configured internal solver and what each must be."""
+
+
 def make_solver(spec: Mapping[str, Any] | None) -> InternalSolver:
-    """Build an internal solver from a configuration mapping such as ``{"method": "rk4"}``."""
+    """Build an internal solver from a configuration mapping such as ``{"method": "rk4"}``.
+
+    Every option is checked here — name, type and range — and every problem named in one
+    ``ValueError``: a negative ``substeps`` or ``max_dt`` once ran without a word and returned
+    an order-one error (issue 13's new-user trial)."""
     spec = dict(spec or {})
     method = str(spec.pop("method", "rk4")).lower()
-    if method == "rk4":
-        return RK4(**spec)
-    chosen = next((m for m in METHODS if m.lower() == method), None)
+    chosen = "rk4" if method == "rk4" else next((m for m in METHODS if m.lower() == method),
+                                                None)
     if chosen is None:
         raise ValueError(f"unknown solver method '{method}'; choose rk4 or one of "
                          f"{', '.join(METHODS)}")
-    return SolveIvp(method=chosen, **spec)
+    known = SOLVER_OPTIONS["rk4" if chosen == "rk4" else "scipy"]
+    wrong = [_solver_option_problem(key, value, known) for key, value in spec.items()]
+    wrong = [w for w in wrong if w]
+    if wrong:
+        raise ValueError(f"{chosen}: " + "; ".join(wrong))
+    return RK4(**spec) if chosen == "rk4" else SolveIvp(method=chosen, **spec)
+
+
+def _solver_option_problem(key: str, value: Any, known: Mapping[str, str]) -> str | None:
+    """What is wrong with one solver option (``None``: nothing)."""
+    kind = known.get(key)
+    if kind is None:
+        return f"no option '{key}' (its options: {', '.join(known)})"
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    if kind == "bool":
+        return None if isinstance(value, bool) else f"'{key}' must be true or false"
+    if kind == "int":
+        ok = number and float(value).is_integer() and value >= 1
+        return None if ok else f"'{key}' must be a whole number >= 1, got {value!r}"
+    ok = number and value > 0 and (kind == "step" or math.isfinite(value)) and value == value
+    return None if ok else f"'{key}' must be a positive number, got {value!r}"
 
 
 class OdeSubModel(SubModel):

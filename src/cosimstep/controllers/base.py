@@ -9,6 +9,7 @@ small class registered by name.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -141,6 +142,25 @@ def _smooth(level: float, trend: float, x: float) -> tuple[tuple[float, float], 
     return (level, trend), miss
 
 
+def _wrong_types(policy: Any) -> list[str]:
+    """The step policy's settings whose type is not the declared one (a switch given as
+    ``--opt predictive=maybe`` ran as if true; ``hmax=abc`` failed deep inside with a
+    comparison error). Numbers: ints and floats, not booleans; ``None`` where allowed."""
+    wrong = []
+    for f in dataclasses.fields(policy):
+        value, kind = getattr(policy, f.name), str(f.type)
+        if value is None and "None" in kind:
+            continue
+        if kind == "bool":
+            if not isinstance(value, bool):
+                wrong.append(f"`{f.name}` must be true or false, got {value!r}")
+        elif kind.startswith("float") and (isinstance(value, bool)
+                                          or not isinstance(value, int | float)
+                                          or value != value):
+            wrong.append(f"`{f.name}` must be a number, got {value!r}")
+    return wrong
+
+
 @dataclass
 class StepPolicy:
     """Error norm and step-size update shared by the error-controlled controllers.
@@ -251,8 +271,11 @@ class StepPolicy:
     cancellation: float = 5.0
 
     def __post_init__(self) -> None:
-        if not self.tol > 0:
-            raise ValueError(f"`tol` must be positive, got {self.tol}")
+        wrong = _wrong_types(self)
+        if wrong:
+            raise ValueError("; ".join(wrong))
+        if not (self.tol > 0 and math.isfinite(self.tol)):
+            raise ValueError(f"`tol` must be a positive finite number, got {self.tol}")
         if not 0 < self.hmin < self.hmax:
             raise ValueError(f"need 0 < `hmin` < `hmax`, got {self.hmin}, {self.hmax}")
         if not (0 < self.shrink < 1 < self.grow and 0 < self.safety <= 1
