@@ -251,7 +251,8 @@ def _values(pairs: tuple[str, ...], flag: str) -> dict[str, float]:
             value = math.nan
         if not sep or not key.strip() or not math.isfinite(value):
             bad.append(Problem(f"{flag} {pair}", "expected NAME=NUMBER",
-                               f"e.g. {flag} l2=0.5 or {flag} bar2.l2=0.5"))
+                               f"e.g. {flag} NAME=0.5 (a shared value) or {flag} "
+                               "MODEL.NAME=0.5 (one sub-model's)"))
             continue
         out[key.strip()] = value
     if bad:
@@ -589,7 +590,12 @@ def plot(db: str, output: str, run_id: int | None) -> None:
                      f"end it in one of: .{', .'.join(sorted(formats))}")], "the command line"))
     try:
         stored = read_run(db, run_id)
-    except (FileNotFoundError, LookupError, sqlite3.DatabaseError) as exc:
+    except LookupError as exc:
+        fix = "see `cosimstep runs DB` for the runs it holds" if run_id is not None \
+            else "is it a cosimstep results store?"
+        click.echo(f"error: {db}: {exc} ({fix})", err=True)
+        sys.exit(EXIT_CONFIG)
+    except (FileNotFoundError, sqlite3.DatabaseError) as exc:
         click.echo(f"error: {db}: {exc} (is it a cosimstep results store?)", err=True)
         sys.exit(EXIT_CONFIG)
     click.echo(f"wrote {plot_run(stored, output)}")

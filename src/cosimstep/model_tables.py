@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import inspect
 import math
 import sys
 from collections.abc import Callable
@@ -162,6 +163,13 @@ def _event_model(sec: ModelSection, where: str, problems: list[Problem]) -> SubM
     if sec.type == "timetable" and past:
         problems.append(Problem(f"{where}.parameters.times", f"times {past} are before the "
                                 "start (runs start at t = 0)", "give times >= 0"))
+        return None
+    accepted = [p for p in inspect.signature(cls).parameters if p != "self"]
+    unknown = [k for k in sec.parameters if k not in accepted]
+    for k in unknown:
+        problems.append(Problem(f"{where}.parameters.{k}", f"type '{sec.type}' has no "
+                                f"parameter '{k}'", f"its parameters: {', '.join(accepted)}"))
+    if unknown:
         return None
     try:
         return cls(**sec.parameters)

@@ -134,9 +134,11 @@ def estimate_problems(estimate: str, controller: Controller, master: MasterOptio
         return out
     # the companion run repeats what pc keeps over one common step sequence
     if controller.name != "pc":
+        adaptive = getattr(controller, "policy", None) is not None
         out.append((f"'richardson' repeats controller pc's scheme at doubled steps; controller "
                     f"'{controller.name}' is not pc",
-                    "give --tol TOL without --controller, or --estimate rerun"))
+                    "give --tol TOL without --controller (pc)"
+                    + (", or --estimate rerun" if adaptive else "")))
     if master is not None and master.name == "multirate":
         out.append(("'richardson' needs one step sequence for every sub-model; the multirate "
                     "master has one per sub-model",

@@ -11,6 +11,7 @@ last; neither imports the other.
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -94,11 +95,25 @@ def parse(cls: type[BaseModel], body: Any, where: str, problems: list[Problem]) 
     try:
         return cls.model_validate(body)
     except ValidationError as exc:
+        keys = [f.alias or name for name, f in cls.model_fields.items()]
         for e in exc.errors():
             key = ".".join(str(p) for p in e["loc"])
-            problems.append(Problem(f"{where}.{key}" if key else where, e["msg"],
-                                    "check the spelling and type of this key"))
+            what, fix = _plain(e, keys)
+            problems.append(Problem(f"{where}.{key}" if key else where, what, fix))
         return None
+
+
+def _plain(error: Mapping[str, Any], keys: list[str]) -> tuple[str, str]:
+    """A validation error as a user reads it: a misspelt key is an unknown one with a
+    suggestion (and its twin, the required key it should have been, says so too)."""
+    name = str(error["loc"][-1]) if error["loc"] else ""
+    if error["type"] == "extra_forbidden":
+        close = difflib.get_close_matches(name, keys, n=1)
+        return "unknown key", (f"did you mean '{close[0]}'?" if close
+                               else f"known keys: {', '.join(keys)}")
+    if error["type"] == "missing":
+        return "required key missing", f"add {name} = ... (a misspelt key is listed beside)"
+    return error["msg"], "check the spelling and type of this key"
 
 
 def parse_header(settings: Mapping[str, Any], where: str,
@@ -119,8 +134,10 @@ def parse_header(settings: Mapping[str, Any], where: str,
 
 def build_reference(sec: ReferenceSection, header: HeaderSection, changes: Changes,
                     system: System, where: str, problems: list[Problem],
-                    used: set[str]) -> Reference | None:
-    """The monolithic reference a ``[reference]`` table names, reading the shared values."""
+                    used: set[str], refused: frozenset[str] = frozenset()) -> Reference | None:
+    """The monolithic reference a ``[reference]`` table names, reading the shared values
+    (``refused``: models the file declares that could not be built; their map entries are not
+    checked, as their problems are listed already)."""
     kind = REGISTRY.get(sec.type)
     if kind is None:
         problems.append(Problem(f"{where}.type", f"unknown reference model '{sec.type}'",
@@ -136,6 +153,8 @@ def build_reference(sec: ReferenceSection, header: HeaderSection, changes: Chang
     outputs = {f"{n}.{p.name}" for n, m in system.models.items() for p in m.outputs}
     states = {p.name for p in model.outputs}
     for k, v in sec.map.items():
+        if k.partition(".")[0] in refused:
+            continue  # its model's own problems are listed already
         if k not in outputs:
             problems.append(Problem(f"{where}.map.{k}", "not an output of the system",
                                     "keys are model.output addresses"))
@@ -186,8 +205,16 @@ def _check_controller(sec: ControllerSection, where: str, problems: list[Problem
 
     settings = sec.model_dump(exclude_none=True)
     name = settings.pop("name", None)
-    if not settings or ("step" not in settings and "tol" not in settings
-                        and name in (None, "fixed")):
+    chosen = name or ("pc" if "tol" in settings else "fixed")
+    if chosen in CONTROLLERS:
+        known = controller_options(chosen)
+        unknown = [k for k in settings if k not in ("step", "tol", *known)]
+        for k in unknown:
+            problems.append(Problem(f"{where}.{k}", f"controller '{chosen}' has no option "
+                                    f"'{k}'", f"its options: {', '.join(known)}"))
+        if unknown:
+            return
+    if not settings or ("step" not in settings and chosen == "fixed"):
         return  # nothing to check, or a step the command line may still give
     try:
         make_controller(name, settings.pop("step", None), settings.pop("tol", None), **settings)
@@ -233,8 +260,10 @@ def finish(settings: Mapping[str, Any], header: HeaderSection, system: System, o
     if "reference" in settings:
         sec = parse(ReferenceSection, settings["reference"], loc("reference"), problems)
         if sec is not None and reference:
+            declared = raw.get("models") if isinstance(raw.get("models"), dict) else {}
+            refused = frozenset(m for m in declared if m not in system.models)
             ref = build_reference(sec, header, changes, system, loc("reference"), problems,
-                                  used if used is not None else set())
+                                  used if used is not None else set(), refused)
     if used is not None:
         _unused(header, changes, used, loc, problems)
     if problems:

@@ -383,3 +383,22 @@ def test_budgets_end_a_run_timed_out_with_its_results_stored(examples, tmp_path)
     out = json.loads(res.output)
     assert out["status"] == "timed_out" and "wall-time budget of 0.3 s" in out["message"]
     assert out["wall_s"] < 3.0
+
+
+def test_misspelt_keys_are_named_with_a_suggestion_and_no_follow_on_errors(tmp_path):
+    """A misspelt key, an unknown parameter of an event kind and an unknown controller option
+    are each named once, with what was meant; the reference's map entry for the model that
+    could not be built is not reported again."""
+    (tmp_path / "typos.toml").write_text(
+        'until = 1.0\n[models.a]\ntype = "linear_coupled.slow"\n'
+        '[models.b]\ntpye = "linear_coupled.fast"\n'
+        '[models.h]\ntype = "failure"\nparameters = { law = "weibull", sclae = 3.0 }\n'
+        '[controller]\nname = "fixed"\nstepp = 0.001\n'
+        '[reference]\ntype = "linear_coupled"\nmap = { "b.x" = "x" }\n')
+    res = CliRunner().invoke(main, ["validate", str(tmp_path / "typos.toml")])
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    assert "models.b.tpye: unknown key (fix: did you mean 'type'?)" in res.output
+    assert "models.h.parameters.sclae: type 'failure' has no parameter 'sclae'" in res.output
+    assert "controller.stepp: controller 'fixed' has no option 'stepp'" in res.output
+    assert "reference.map" not in res.output
+    assert res.output.startswith("4 problem(s)"), res.output  # b.type missing is the fourth
