@@ -693,6 +693,10 @@ def demo(which: str, out: str) -> None:
         r = run.result
         click.echo(f"{run.label:26s} {r.status:8s} {r.calls_total:7d} "
                    f"{r.error.max_scaled if r.error else float('nan'):10.2e} {r.wall_s:7.2f}")
+    for run in runs:
+        if run.result.error is not None and run.result.error.grid_max_scaled is not None:
+            click.echo(f"{run.label}: max error at its sub-models' own points; "
+                       f"{run.result.error.grid_max_scaled:.2e} interpolated between them")
     click.echo(f"status: {'ok' if all(r.result.success for r in runs) else 'failed'}   "
                f"store: {db} (3 runs)   figure: {figure}")
     sys.exit(0 if all(r.result.success for r in runs) else EXIT_FAILED)
