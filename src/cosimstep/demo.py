@@ -122,11 +122,14 @@ def _own_errors(result: SimulationResult) -> list[tuple[str, np.ndarray, np.ndar
         if not own or result.reference is None:
             continue
         cols = [outputs.index(n) for n in own]
-        ref = np.column_stack([np.interp(stats.times, result.times,
+        # a run that stopped early: a sub-model that got ahead has points past the grid's end
+        keep = np.asarray(stats.times) <= result.times[-1]
+        stats_times, stats_values = np.asarray(stats.times)[keep], stats.values[keep]
+        ref = np.column_stack([np.interp(stats_times, result.times,
                                          result.reference[:, list(mapped).index(n)])
                                for n in own])
-        error = np.max(np.abs(stats.values[:, cols] - ref) / (1.0 + np.abs(ref)), axis=1)
-        out.append((name, np.asarray(stats.times), error))
+        error = np.max(np.abs(stats_values[:, cols] - ref) / (1.0 + np.abs(ref)), axis=1)
+        out.append((name, stats_times, error))
     return out
 
 

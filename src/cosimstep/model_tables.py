@@ -84,17 +84,19 @@ def build_model(name: str, sec: ModelSection, header: HeaderSection,
         problems.append(Problem(f"{where}.type", f"unknown model type '{sec.type}'",
                                 f"use 'python', 'fmu' or one of: {', '.join(known)}"))
         return None
-    if not _builtin_values_ok(sec, kind, where, problems):
-        return None
+    # the shared values this type reads count as read even if the model is refused below:
+    # its own problem is the one to report, not "no model uses ..." for each of them
     shared = {k: v for k, v in header.parameters.items() if k in kind.parameters}
     used.update(shared)
+    for _, vals in changes:
+        used.update(k for k in vals if k in kind.parameters)
+    used.update(f"start.{k}" for k in header.start if k in kind.start)
+    if not _builtin_values_ok(sec, kind, where, problems):
+        return None
     params = {**kind.parameters, **shared, **sec.parameters}
     own_changes = [(t, {k: v for k, v in vals.items() if k in kind.parameters})
                    for t, vals in changes]
-    for _, vals in changes:
-        used.update(k for k in vals if k in kind.parameters)
     start = {**header.start, **sec.start}
-    used.update(f"start.{k}" for k in header.start if k in kind.start)
     try:
         solver = make_solver(sec.solver if sec.solver is not None else header.solver)
     except (TypeError, ValueError) as exc:

@@ -96,14 +96,15 @@ def parse(cls: type[BaseModel], body: Any, where: str, problems: list[Problem]) 
         return cls.model_validate(body)
     except ValidationError as exc:
         keys = [f.alias or name for name, f in cls.model_fields.items()]
+        unknown = {tuple(e["loc"][:-1]) for e in exc.errors() if e["type"] == "extra_forbidden"}
         for e in exc.errors():
             key = ".".join(str(p) for p in e["loc"])
-            what, fix = _plain(e, keys)
+            what, fix = _plain(e, keys, tuple(e["loc"][:-1]) in unknown)
             problems.append(Problem(f"{where}.{key}" if key else where, what, fix))
         return None
 
 
-def _plain(error: Mapping[str, Any], keys: list[str]) -> tuple[str, str]:
+def _plain(error: Mapping[str, Any], keys: list[str], beside: bool) -> tuple[str, str]:
     """A validation error as a user reads it: a misspelt key is an unknown one with a
     suggestion (and its twin, the required key it should have been, says so too)."""
     name = str(error["loc"][-1]) if error["loc"] else ""
@@ -112,7 +113,8 @@ def _plain(error: Mapping[str, Any], keys: list[str]) -> tuple[str, str]:
         return "unknown key", (f"did you mean '{close[0]}'?" if close
                                else f"known keys: {', '.join(keys)}")
     if error["type"] == "missing":
-        return "required key missing", f"add {name} = ... (a misspelt key is listed beside)"
+        return "required key missing", (f"add {name} = ..." + (" (or correct the unknown key "
+                                                               "listed beside)" if beside else ""))
     return error["msg"], "check the spelling and type of this key"
 
 
@@ -153,9 +155,8 @@ def build_reference(sec: ReferenceSection, header: HeaderSection, changes: Chang
     outputs = {f"{n}.{p.name}" for n, m in system.models.items() for p in m.outputs}
     states = {p.name for p in model.outputs}
     for k, v in sec.map.items():
-        if k.partition(".")[0] in refused:
-            continue  # its model's own problems are listed already
-        if k not in outputs:
+        # a refused model's outputs are unknown: its own problems are listed already
+        if k not in outputs and k.partition(".")[0] not in refused:
             problems.append(Problem(f"{where}.map.{k}", "not an output of the system",
                                     "keys are model.output addresses"))
         if v not in states:
@@ -205,19 +206,13 @@ def _check_controller(sec: ControllerSection, where: str, problems: list[Problem
 
     settings = sec.model_dump(exclude_none=True)
     name = settings.pop("name", None)
-    chosen = name or ("pc" if "tol" in settings else "fixed")
-    if chosen in CONTROLLERS:
-        known = controller_options(chosen)
-        unknown = [k for k in settings if k not in ("step", "tol", *known)]
-        for k in unknown:
-            problems.append(Problem(f"{where}.{k}", f"controller '{chosen}' has no option "
-                                    f"'{k}'", f"its options: {', '.join(known)}"))
-        if unknown:
-            return
-    if not settings or ("step" not in settings and chosen == "fixed"):
-        return  # nothing to check, or a step the command line may still give
+    if not settings:
+        return
+    step, tol = settings.pop("step", None), settings.pop("tol", None)
+    if step is None and (name or ("pc" if tol is not None else "fixed")) == "fixed":
+        step = 1.0  # the command line may still give the step: check the rest with a stand-in
     try:
-        make_controller(name, settings.pop("step", None), settings.pop("tol", None), **settings)
+        make_controller(name, step, tol, **settings)
     except (TypeError, ValueError) as exc:
         text = str(exc)
         if "unexpected keyword argument" in text:

@@ -394,11 +394,27 @@ def test_misspelt_keys_are_named_with_a_suggestion_and_no_follow_on_errors(tmp_p
         '[models.b]\ntpye = "linear_coupled.fast"\n'
         '[models.h]\ntype = "failure"\nparameters = { law = "weibull", sclae = 3.0 }\n'
         '[controller]\nname = "fixed"\nstepp = 0.001\n'
-        '[reference]\ntype = "linear_coupled"\nmap = { "b.x" = "x" }\n')
+        '[reference]\ntype = "linear_coupled"\nmap = { "b.u" = "u" }\n')
     res = CliRunner().invoke(main, ["validate", str(tmp_path / "typos.toml")])
     assert res.exit_code == 2 and "Traceback" not in res.output, res.output
     assert "models.b.tpye: unknown key (fix: did you mean 'type'?)" in res.output
     assert "models.h.parameters.sclae: type 'failure' has no parameter 'sclae'" in res.output
-    assert "controller.stepp: controller 'fixed' has no option 'stepp'" in res.output
+    assert "controller: unknown option 'stepp' (fix: correct the [controller] table; options " \
+        "of 'fixed': step, locate_events)" in res.output
     assert "reference.map" not in res.output
     assert res.output.startswith("4 problem(s)"), res.output  # b.type missing is the fourth
+
+
+def test_controllers_that_pass_options_on_load_with_them(tmp_path):
+    """``switching`` and ``adaptive-tol`` hand options to the controller inside them: a file's
+    [controller] with such options is valid (the check builds the controller, as a run does)."""
+    for table in ('name = "switching"\ntol = 1e-4\nprobe_every = 10\n',
+                  'name = "adaptive-tol"\ninner = "rkf45"\nmode = "all"\n'):
+        (tmp_path / "c.toml").write_text(
+            'until = 1.0\n[models.a]\ntype = "linear_coupled.slow"\n'
+            '[models.b]\ntype = "linear_coupled.fast"\n'
+            '[[connections]]\nfrom = "b.u"\nto = "a.u"\n'
+            '[[connections]]\nfrom = "a.w"\nto = "b.w"\n'
+            f'[controller]\n{table}')
+        res = CliRunner().invoke(main, ["validate", str(tmp_path / "c.toml")])
+        assert res.exit_code == 0 and "ok —" in res.output, res.output

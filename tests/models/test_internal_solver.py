@@ -92,3 +92,15 @@ def test_a_configured_solver_names_every_bad_option() -> None:
                               "first_step, max_step, carry)")
     assert make_solver({"method": "rk4", "max_dt": 1e-3}).max_dt == 1e-3
     assert make_solver({"method": "BDF", "max_step": float("inf")}).method == "BDF"
+
+
+def test_numpy_numbers_and_defaults_pass_the_checks() -> None:
+    """The checks refuse wrong values, not NumPy's numbers or an explicit default."""
+    from cosimstep.controllers import Fixed, make_controller
+
+    assert make_solver({"method": "rk4", "substeps": np.int64(4), "max_dt": None}).substeps == 4
+    assert make_solver({"method": "rk4", "substeps": 2.0}).substeps == 2
+    assert make_solver({"method": "RK45", "rtol": np.float32(1e-6), "first_step": None}).rtol
+    assert Fixed(np.float32(0.01)).step == pytest.approx(0.01)
+    pc = make_controller("pc", None, 1e-4, hmax=np.int64(1), predictive=np.bool_(True))
+    assert pc.policy.hmax == 1

@@ -16,6 +16,7 @@ import bisect
 import dataclasses
 import itertools
 import math
+import numbers
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -49,15 +50,14 @@ class InputPolynomial:
     Same values, bit for bit, as :func:`_taylor` (the same floating-point operations in the same
     order, one input at a time), but on Python floats: with a few inputs, NumPy's per-call cost
     made the input polynomial a third of a small ODE sub-model's step, as it runs on every
-    right-hand-side evaluation. Derivative rows that are zero throughout are left out: adding
-    their zero terms changes no value.
+    right-hand-side evaluation. Every derivative row is kept, zero or not: adding a zero term
+    turns a sum of ``-0.0`` into ``+0.0``, which ``arctan2`` and the like tell apart.
     """
 
     __slots__ = ("_columns", "_order")
 
     def __init__(self, value: np.ndarray, derivatives: np.ndarray) -> None:
-        used = [k for k in range(len(derivatives)) if derivatives[k].any()]
-        self._order = used[-1] + 1 if used else 0
+        self._order = len(derivatives)
         self._columns = list(zip(np.asarray(value, dtype=float).tolist(),
                                  *np.asarray(derivatives[:self._order], dtype=float).tolist()))
 
@@ -146,7 +146,8 @@ class RK4:
     max_dt: float | None = None
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.substeps, int) and self.substeps >= 1):
+        if not (isinstance(self.substeps, numbers.Integral)
+                and not isinstance(self.substeps, bool) and self.substeps >= 1):
             raise ValueError(f"RK4 needs substeps >= 1, got {self.substeps!r}")
         if self.max_dt is not None and not self.max_dt > 0:
             raise ValueError(f"RK4 needs max_dt > 0, got {self.max_dt!r}")
@@ -274,10 +275,13 @@ def make_solver(spec: Mapping[str, Any] | None) -> InternalSolver:
         raise ValueError(f"unknown solver method '{method}'; choose rk4 or one of "
                          f"{', '.join(METHODS)}")
     known = SOLVER_OPTIONS["rk4" if chosen == "rk4" else "scipy"]
+    spec = {k: v for k, v in spec.items() if v is not None}  # None: the option's default
     wrong = [_solver_option_problem(key, value, known) for key, value in spec.items()]
     wrong = [w for w in wrong if w]
     if wrong:
         raise ValueError(f"{chosen}: " + "; ".join(wrong))
+    if "substeps" in spec:
+        spec["substeps"] = int(spec["substeps"])  # 2.0 from a file is 2
     return RK4(**spec) if chosen == "rk4" else SolveIvp(method=chosen, **spec)
 
 
@@ -286,9 +290,9 @@ def _solver_option_problem(key: str, value: Any, known: Mapping[str, str]) -> st
     kind = known.get(key)
     if kind is None:
         return f"no option '{key}' (its options: {', '.join(known)})"
-    number = isinstance(value, int | float) and not isinstance(value, bool)
+    number = isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
     if kind == "bool":
-        return None if isinstance(value, bool) else f"'{key}' must be true or false"
+        return None if isinstance(value, bool | np.bool_) else f"'{key}' must be true or false"
     if kind == "int":
         ok = number and float(value).is_integer() and value >= 1
         return None if ok else f"'{key}' must be a whole number >= 1, got {value!r}"

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
@@ -145,20 +146,24 @@ def _smooth(level: float, trend: float, x: float) -> tuple[tuple[float, float], 
 def _wrong_types(policy: Any) -> list[str]:
     """The step policy's settings whose type is not the declared one (a switch given as
     ``--opt predictive=maybe`` ran as if true; ``hmax=abc`` failed deep inside with a
-    comparison error). Numbers: ints and floats, not booleans; ``None`` where allowed."""
+    comparison error). Numbers: any real number (NumPy's too), not a boolean; ``None``
+    where allowed."""
     wrong = []
     for f in dataclasses.fields(policy):
         value, kind = getattr(policy, f.name), str(f.type)
         if value is None and "None" in kind:
             continue
         if kind == "bool":
-            if not isinstance(value, bool):
+            if not isinstance(value, bool | np.bool_):
                 wrong.append(f"`{f.name}` must be true or false, got {value!r}")
-        elif kind.startswith("float") and (isinstance(value, bool)
-                                          or not isinstance(value, int | float)
-                                          or value != value):
+        elif kind.startswith("float") and not (is_number(value) and value == value):
             wrong.append(f"`{f.name}` must be a number, got {value!r}")
     return wrong
+
+
+def is_number(value: Any) -> bool:
+    """A real number, NumPy's included, and not a boolean (``True`` is an int to Python)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
 
 
 @dataclass

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from cosimstep.controllers.base import Attempt, Controller, StepContext
+from cosimstep.controllers.base import Attempt, Controller, StepContext, is_number
 
 
 class Fixed(Controller):
@@ -19,8 +19,7 @@ class Fixed(Controller):
         inside a step is located by rollback (one step cut short at the crossing, then the
         fixed step again). Off by default: a fixed-step co-simulation usually fires an event at
         the next communication point, late by up to a step (the run counts them as late)."""
-        if isinstance(step, bool) or not isinstance(step, int | float) \
-                or not (step > 0 and math.isfinite(step)):
+        if not (is_number(step) and step > 0 and math.isfinite(step)):
             raise ValueError(f"`step` must be a positive finite number, got {step!r}")
         self.step = float(step)
         self.locate_events = bool(locate_events)
