@@ -40,9 +40,11 @@ def taylor_coefficients(times: Sequence[float], values: np.ndarray, t0: float,
     """
     values = np.asarray(values, dtype=float)
     n_points = min(len(times), order + 1)
-    out = np.zeros((order + 1, values.shape[1]))
     rows = values[-n_points:]
     s = [float(ti) - t0 for ti in times[-n_points:]]
+    if n_points == order + 1:
+        return weight_matrix(tuple(s)) @ rows
+    out = np.zeros((order + 1, values.shape[1]))
     out[:n_points] = weight_matrix(tuple(s)) @ rows
     return out
 
@@ -173,6 +175,28 @@ def evaluate_at(coefficients: np.ndarray, dts: np.ndarray) -> np.ndarray:
     for k in range(2, order + 1):
         result = result + terms[:, k - 1:k] * c[..., k:k + 1, :]
     return result
+
+
+def evaluate_small(coefficients: np.ndarray, dts: Sequence[float]) -> np.ndarray:
+    """:func:`evaluate_at` for one polynomial of a few signals, on Python floats: the same
+    operations in the same order (bit for bit), without NumPy's cost per operation on arrays
+    of a few elements — the multi-rate master reads its partners' trajectories one signal at
+    a time, several times per step."""
+    columns = coefficients.T.tolist()
+    rows = []
+    for dt in dts:
+        terms, term = [], 1.0
+        for k in range(1, coefficients.shape[0]):
+            term = term * (dt / k)
+            terms.append(term)
+        row = []
+        for c in columns:
+            value = c[0]
+            for term, ck in zip(terms, c[1:]):
+                value = value + term * ck
+            row.append(value)
+        rows.append(row)
+    return np.array(rows, dtype=float).reshape(len(rows), coefficients.shape[1])
 
 
 def midstep_weights(order: int, through_end: bool = False) -> list[float]:

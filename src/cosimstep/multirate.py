@@ -40,7 +40,7 @@ import numpy as np
 from cosimstep.controllers.base import StepPolicy
 from cosimstep.errors import SubModelError
 from cosimstep.events import MAX_EVENTS, DiscreteEventModel, Event
-from cosimstep.extrapolation import evaluate, evaluate_at, taylor_coefficients
+from cosimstep.extrapolation import evaluate, evaluate_small, taylor_coefficients
 from cosimstep.kernel import Actor, Budget, Kernel
 from cosimstep.loops import EVENT_TOL, crossing
 from cosimstep.masters import Master, MasterOptions
@@ -261,7 +261,7 @@ class Multirate:
             curve = self.method.fit(pts, vals, slopes if hermite else None)
             return np.asarray(curve(at), dtype=float), False
         coef = taylor_coefficients(pts, vals[:, None], float(at[0]), len(pts) - 1)
-        return evaluate_at(coef, at - float(at[0]))[:, 0], beyond
+        return evaluate_small(coef, (at - float(at[0])).tolist())[:, 0], beyond
 
     @staticmethod
     def _held(tr: Track, col: int, at: np.ndarray, hi: float) -> np.ndarray:
@@ -306,7 +306,7 @@ class Multirate:
         if not len(src):
             return 0.0
         coef = taylor_coefficients(list(t + NODES * h), inputs, t, 3)
-        fed = evaluate_at(coef, BETWEEN * h)
+        fed = evaluate_small(coef, (BETWEEN * h).tolist())
         true = np.empty_like(fed)
         at = t + BETWEEN * h
         for i, j in enumerate(src):

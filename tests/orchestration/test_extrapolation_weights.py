@@ -105,3 +105,24 @@ def test_evaluating_at_many_offsets_is_evaluating_at_each_bit_for_bit() -> None:
                 expected = np.array([evaluate(stack[i], dt) for dt in dts])
                 assert [v.hex() for v in got[i].ravel().tolist()] == \
                     [v.hex() for v in expected.ravel().tolist()]
+
+
+def test_evaluating_a_few_signals_on_floats_is_evaluate_bit_for_bit() -> None:
+    """``evaluate_small`` (the multi-rate master's partner trajectories) gives the floats
+    ``evaluate`` gives, sign of zero included."""
+    import numpy as np
+
+    from cosimstep.extrapolation import evaluate, evaluate_small
+
+    rng = np.random.default_rng(9)
+    for rows in range(1, 6):
+        for signals in (1, 2, 4):
+            for _ in range(300):
+                c = rng.normal(size=(rows, signals)) * 10.0 ** rng.uniform(-6, 6)
+                dts = (rng.uniform(-1, 1, size=int(rng.integers(1, 6)))
+                       * 10.0 ** rng.uniform(-6, 2))
+                expected = np.array([evaluate(c, float(dt)) for dt in dts])
+                got = evaluate_small(c, dts.tolist())
+                assert got.shape == expected.shape
+                assert [v.hex() for v in got.ravel().tolist()] == \
+                    [v.hex() for v in expected.ravel().tolist()]
