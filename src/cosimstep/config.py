@@ -77,7 +77,14 @@ def load_system(path: str | Path, until: float | None = None,
         return load_ssp(path, until, overrides)
     raw = _single_fmu(path) if path.suffix.lower() == ".fmu" else _read_toml(path)
     problems: list[Problem] = []
-    loc = lambda key: f"{src}: {key}"  # noqa: E731 - tiny local formatter
+    given = {f"{table}.{name}": f"{'--param' if table == 'parameters' else '--start'} {name}"
+             for table, values in (overrides or {}).items() for name in values}
+
+    def loc(key: str) -> str:
+        """Where to report ``key``: the command line for a value given there, else the file
+        (a shared value given with --param/--start is checked like one in the file)."""
+        return given.get(key, f"{src}: {key}")
+
     raw = _known_top(raw, loc, problems)
     _override(raw, overrides or {}, problems)
     header = parse_header(raw, loc("[top level]"), problems)

@@ -299,7 +299,7 @@ def test_user_errors_are_configuration_errors_not_tracebacks(examples, tmp_path)
         (["run", linear, "--tol", "1e-3", "--opt", "predictive=maybe"],
          "`predictive` must be true or false, got 'maybe'"),
         (["run", linear, "--tol", "1e-3", "--opt", "hmax=abc"], "`hmax` must be a number"),
-        (["run", linear, "--start", "theta9=0.3"], "start.theta9: no model reads this start"),
+        (["run", linear, "--start", "theta9=0.3"], "--start theta9: no model reads this start"),
         (["run", linear, "--master", "gauss-seidel", "--resync", "complete"],
          "this run's master is 'gauss-seidel'"),
         (["run", linear, "--out", str(tmp_path / "o.db"), "--no-store"],
@@ -358,7 +358,7 @@ def test_param_and_start_change_a_run_without_editing_the_file(examples, tmp_pat
     res = runner.invoke(main, ["run", slow, "--param", "l9=0.4", "--param", "barX.l1=1",
                                "--no-store"])
     assert res.exit_code == 2
-    assert "--param barX.l1: no model 'barX'" in res.output and "parameters.l9" in res.output
+    assert "--param barX.l1: no model 'barX'" in res.output and "--param l9: no model uses" in res.output
 
 
 def test_budgets_end_a_run_timed_out_with_its_results_stored(examples, tmp_path):

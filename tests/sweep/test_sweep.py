@@ -71,7 +71,7 @@ def test_the_command_line_reports_bad_names_before_running(tmp_path, examples) -
     system = str(examples / "double_pendulum_slow.toml")
     out = str(tmp_path / "s.db")
     res = CliRunner().invoke(main, ["sweep", system, "--param", "l9=1,2", "--out", out])
-    assert res.exit_code == 2 and "parameters.l9: no model uses this parameter" in res.output
+    assert res.exit_code == 2 and "--param l9: no model uses this parameter" in res.output
     res = CliRunner().invoke(main, ["sweep", system, "--param", "l2=1:2", "--out", out])
     assert res.exit_code == 2 and "needs listed values" in res.output
     res = CliRunner().invoke(main, ["sweep", system, "--param", "l2=2:1", "--out", out])
