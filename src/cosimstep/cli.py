@@ -431,7 +431,8 @@ def _report(result: SimulationResult, as_json: bool) -> None:
                       "common grid, interpolated between them)" if "grid_max_scaled" in e else ""))
     if summary.get("error_estimate") is not None:
         cost = summary["error_estimate_calls"]
-        click.echo(f"estimated error (own, no reference): {summary['error_estimate']:.3e}"
+        click.echo(f"estimated coupling error (own, no reference; a sub-model's own "
+                   f"integration error is not in it): {summary['error_estimate']:.3e}"
                    + (f" (estimate cost {cost} calls)" if cost else ""))
     click.echo(f"wall: {summary['wall_s']:.2f} s   store: "
                f"{summary['store'] or 'none (--no-store)'}")
