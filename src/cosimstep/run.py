@@ -167,6 +167,7 @@ class Synchronous(Scheme):
         # The fixed step needs no controller, context or attempt per step: a lean loop gives
         # the same run (a subclass of Fixed may change attempt(), so only Fixed qualifies).
         watched = bool(self.state_events or self.changing)
+        self.runner.correct_start = isinstance(self.controller, Fixed)
         if type(self.controller) is Fixed and not watched:
             self.loop = FixedLoop(self.runner, self.controller.step, self.t0, self.until,
                                   self.events, sink, bar)
