@@ -247,7 +247,8 @@ def write(runs: list[dict], pc_rows: list[str]) -> None:
         "### The default adaptive controller with IQN-ILS (`pc`)",
         "",
         "The examples' own settings with `coupling = \"iqn-ils\"` (target: err/tol in "
-        "[0.1, 10]); the same with explicit coupling beside it.",
+        "[0.1, 10]); the same with explicit coupling beside it. Both examples have a spring "
+        "sub-model that holds its inputs, so `pc` runs step doubling on them.",
         "",
         "| example | tol | status | error | err/tol | calls | passes per step "
         "| explicit err/tol | explicit calls |",
