@@ -266,12 +266,7 @@ class Master:
         self._watch: _Watchdog | None = None  # set while a watched run is under way
         self._dy0: np.ndarray | None = None
         self.correct_start = False  # set by a fixed-step run: see :meth:`step`
-        self._restorable = all(m.capabilities.can_save_state for m in system.models)
-        # some model carries its inputs' path over a step into an output (one it computes,
-        # not one settled from its inputs at the step's end): only then can a start help
-        self._integrating = any(
-            len(src) and any(p.name not in m.capabilities.feedthrough for p in m.outputs)
-            for m, src in zip(system.models, system.src))
+        self._restorable, self._integrating = _start_facts(system)
         self.predicted = self._predicted_columns()
         self.consumed = np.zeros(system.n_outputs, dtype=bool)  # outputs some model reads
         self.held = np.zeros(system.n_outputs, dtype=bool)  # read by a hold-only receiver
@@ -697,6 +692,17 @@ class _LeanKernel:
         if isinstance(exc, EndOfSimulation):
             raise EndOfSimulation(self.names[k], exc.reason) from None
         raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc
+
+
+def _start_facts(system: CompiledSystem) -> tuple[bool, bool]:
+    """For :meth:`Master._start_without_slopes`: whether every model can go back, and whether
+    some model carries its inputs' path over a step into an output (one it computes, not one
+    settled from its inputs at the step's end) — only then can re-running a start help."""
+    restorable = all(m.capabilities.can_save_state for m in system.models)
+    integrating = any(
+        len(src) > 0 and any(p.name not in m.capabilities.feedthrough for p in m.outputs)
+        for m, src in zip(system.models, system.src))
+    return restorable, integrating
 
 
 class _HeldKernel(_LeanKernel):
