@@ -24,6 +24,7 @@ from cosimstep.controllers import (
     controller_options,
     make_controller,
     merged_settings,
+    plain_error,
 )
 from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.iteration import COUPLINGS
@@ -324,7 +325,7 @@ def _controller(name: str | None, settings: dict[str, Any], source: str) -> Any:
     except TypeError as exc:
         fix = f"its options: {', '.join(controller_options(name))}" \
             if name in CONTROLLERS or name is None else "see `cosimstep run --help`"
-        _config_exit(ConfigurationError([Problem("controller", _plain_type_error(exc), fix)],
+        _config_exit(ConfigurationError([Problem("controller", plain_error(exc), fix)],
                                         source))
     except ValueError as exc:
         fix = ("correct it where it is set: --tol, --step, --opt KEY=VALUE, or the file's "
@@ -333,14 +334,6 @@ def _controller(name: str | None, settings: dict[str, Any], source: str) -> Any:
                                         if name in CONTROLLERS else "")
         _config_exit(ConfigurationError([Problem("controller", str(exc), fix)], source))
     raise AssertionError  # unreachable: _config_exit exits
-
-
-def _plain_type_error(exc: TypeError) -> str:
-    """``__init__() got an unexpected keyword argument 'x'`` as a user reads it."""
-    text = str(exc)
-    if "unexpected keyword argument" in text:
-        return f"unknown option {text.rpartition('argument ')[2]}"
-    return text
 
 
 def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | None,

@@ -7,7 +7,17 @@ fixes the file once; the second ends a run with a status and keeps the results c
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+
+def is_number(value: Any) -> bool:
+    """A setting's real number, NumPy's included, and not a boolean (``True`` is an int to
+    Python, and ``--opt predictive=1`` is no switch)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
 
 
 @dataclass(frozen=True)

@@ -202,7 +202,7 @@ def _unused(header: HeaderSection, changes: Changes, used: set[str], loc: Callab
 def _check_controller(sec: ControllerSection, where: str, problems: list[Problem]) -> None:
     """The file's ``[controller]`` built once, so that a bad value in it is listed with the
     file's other problems (not found alone, after they were fixed)."""
-    from cosimstep.controllers import CONTROLLERS, controller_options, make_controller
+    from cosimstep.controllers import CONTROLLERS, controller_options, make_controller, plain_error
 
     settings = sec.model_dump(exclude_none=True)
     name = settings.pop("name", None)
@@ -214,12 +214,9 @@ def _check_controller(sec: ControllerSection, where: str, problems: list[Problem
     try:
         make_controller(name, step, tol, **settings)
     except (TypeError, ValueError) as exc:
-        text = str(exc)
-        if "unexpected keyword argument" in text:
-            text = f"unknown option {text.rpartition('argument ')[2]}"
         known = f"; options of '{name}': {', '.join(controller_options(name))}" \
             if name in CONTROLLERS else ""
-        problems.append(Problem(where, text, f"correct the [controller] table{known}"))
+        problems.append(Problem(where, plain_error(exc), f"correct the [controller] table{known}"))
 
 
 @dataclass

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 from scipy.optimize import approx_fprime
 
+from cosimstep.errors import is_number
 from cosimstep.submodel import Capabilities, Port, SubModel
 
 Rhs = Callable[[float, np.ndarray, np.ndarray, Mapping[str, float]], np.ndarray]
@@ -63,13 +64,9 @@ class InputPolynomial:
 
     def __call__(self, dt: float) -> np.ndarray:
         order, columns = self._order, self._columns
-        t1 = 1.0 * (dt / 1)
-        if order == 1:
-            return np.array([u + t1 * a for u, a in columns])
-        t2 = t1 * (dt / 2)
-        if order == 2:
-            return np.array([(u + t1 * a) + t2 * b for u, a, b in columns])
-        if order == 3:
+        if order == 3:  # INPUT_ORDER rows, as the ODE adapter holds them: written out
+            t1 = 1.0 * (dt / 1)
+            t2 = t1 * (dt / 2)
             t3 = t2 * (dt / 3)
             return np.array([((u + t1 * a) + t2 * b) + t3 * c for u, a, b, c in columns])
         terms = [1.0]
@@ -290,7 +287,7 @@ def _solver_option_problem(key: str, value: Any, known: Mapping[str, str]) -> st
     kind = known.get(key)
     if kind is None:
         return f"no option '{key}' (its options: {', '.join(known)})"
-    number = isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+    number = is_number(value)
     if kind == "bool":
         return None if isinstance(value, bool | np.bool_) else f"'{key}' must be true or false"
     if kind == "int":

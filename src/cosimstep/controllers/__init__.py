@@ -57,6 +57,15 @@ def make_controller(name: str | None, step: float | None = None, tol: float | No
     return CONTROLLERS[name](**kwargs)
 
 
+def plain_error(exc: Exception) -> str:
+    """Why :func:`make_controller` refused, as a user reads it: Python's ``__init__() got an
+    unexpected keyword argument 'x'`` becomes ``unknown option 'x'``."""
+    text = str(exc)
+    if isinstance(exc, TypeError) and "unexpected keyword argument" in text:
+        return f"unknown option {text.rpartition('argument ')[2]}"
+    return text
+
+
 def merged_settings(file: dict[str, Any], controller: str | None, step: float | None,
                     tol: float | None, seed: int | None = None,
                     options: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -93,4 +102,4 @@ __all__ = ["ADAPTIVE", "CONTROLLERS", "DEFAULT_ADAPTIVE", "RKF23", "RKF45", "Ada
            "Attempt", "Controller", "Corrector", "Curvature", "Defect", "Doubling", "Embedded",
            "Fixed", "PredictorCorrector", "Random", "StepContext", "StepPolicy", "Switching",
            "controller_options", "fft_hmax", "fixed_step_from", "make_controller",
-           "merged_settings"]
+           "merged_settings", "plain_error"]

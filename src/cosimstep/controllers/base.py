@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
-from cosimstep.errors import StepSizeError
+from cosimstep.errors import StepSizeError, is_number
 
 
 @dataclass
@@ -160,10 +159,6 @@ def _wrong_types(policy: Any) -> list[str]:
             wrong.append(f"`{f.name}` must be a number, got {value!r}")
     return wrong
 
-
-def is_number(value: Any) -> bool:
-    """A real number, NumPy's included, and not a boolean (``True`` is an int to Python)."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
 
 
 @dataclass

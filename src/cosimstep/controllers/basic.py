@@ -6,7 +6,8 @@ import math
 
 import numpy as np
 
-from cosimstep.controllers.base import Attempt, Controller, StepContext, is_number
+from cosimstep.controllers.base import Attempt, Controller, StepContext
+from cosimstep.errors import is_number
 
 
 class Fixed(Controller):
