@@ -44,6 +44,7 @@ from cosimstep.extrapolation import evaluate, evaluate_small, taylor_coefficient
 from cosimstep.kernel import Actor, Budget, Kernel
 from cosimstep.loops import EVENT_TOL, crossing
 from cosimstep.masters import Master, MasterOptions
+from cosimstep.race_memory import PROBE_EVERY, RaceMemory
 from cosimstep.system import CompiledSystem
 
 NODES = np.array([0.0, 1 / 3, 2 / 3, 1.0])  # where inputs are sampled over a step (a cubic)
@@ -102,6 +103,7 @@ class Track:
     gain: float | None = None  # measured: scaled output change / (h · scaled input change)
     gain_h: float = math.nan  # the step the gain was measured on
     gain_checks: int = 0  # calls that measured the gain again (Multirate._refresh_gain)
+    probes: int = 0  # calls made by the error memory's probes (race_memory)
     calls: int = 0
     accepted: int = 0
     rejected: int = 0
@@ -142,11 +144,14 @@ class Multirate:
     interpolation:
         ``None`` for the built-in local cubic (fast), or a method of
         :mod:`cosimstep.interpolation` by name for the partners' trajectories.
+    probe_every:
+        Accepted rounds between probes of the error memory once it is known
+        (:mod:`cosimstep.race_memory`); 0: not measured, the tolerance is shared over the run.
     """
 
     def __init__(self, system: CompiledSystem, policy: StepPolicy, h0: float,
                  order: int = 2, interpolation: str | None = None,
-                 resync: str = "partial") -> None:
+                 resync: str = "partial", probe_every: int = PROBE_EVERY) -> None:
         problems = refusals(dict(zip(system.names, system.models)), interpolation)
         if problems:
             raise ValueError("the multirate master re-runs steps and interpolates trajectories; "
@@ -193,11 +198,33 @@ class Multirate:
         self.budget: Budget | None = None  # whole-run limits
         self._on_step: Any = None
         self._steppers: list[_Stepper] = []
+        # the error memory, measured per group of sub-models joined by connections (0: not
+        # probed): two branches that exchange nothing forget at their own rates
+        self.memories = [RaceMemory(self, group, probe_every) for group in self._groups()]
+        self._memory_of = {k: m for m in self.memories for k in m.members}
+        self._peak = 0.0  # the largest estimate so far (it fades where a memory is measured)
 
     def _sources(self, k: int) -> set[int]:
         """The sub-models ``k`` reads (an unconnected input reads a constant: gain 0)."""
         return {int(self.owner[j]) for j, a in zip(self.system.src[k], self.system.a[k])
                 if a != 0.0}
+
+    def _groups(self) -> list[list[int]]:
+        """The sub-models in groups joined by connections (either direction)."""
+        groups: list[list[int]] = []
+        seen: set[int] = set()
+        for k in range(len(self.system.models)):
+            if k in seen:
+                continue
+            group, todo = [], [k]
+            while todo:
+                j = todo.pop()
+                if j not in seen:
+                    seen.add(j)
+                    group.append(j)
+                    todo.extend(self._sources(j) | set(self.consumers[j]))
+            groups.append(sorted(group))
+        return groups
 
     def _downstream(self, k: int) -> set[int]:
         """The sub-models ``k``'s outputs reach through the connections (itself excluded
@@ -660,8 +687,7 @@ class Multirate:
         trial, chain = self._accepted_trial(k, t, landing)
         token, h, lands, y, slope, inputs, extrapolated, left, verdict = trial
         tr.accepted += 1
-        tr.spent_out += verdict.spent_out
-        tr.spent_in += verdict.spent_in
+        self._spend(tr, h, verdict)
         sudden = _discontinuity(chain, h, verdict, tr.steps[-1] if tr.steps else None)
         tr.steps.append(h)
         if self.on_attempt is not None:
@@ -679,7 +705,19 @@ class Multirate:
             self._state_event(k, left)
         elif sudden and not lands:
             self._event(k, "discontinuity", {}, at=len(tr.times) - 2)
+        if not tr.discrete:
+            self._memory_of[k].accepted()
         return lands
+
+    def _spend(self, tr: Track, h: float, verdict: _Verdict) -> None:
+        """Add an accepted step's errors to the run's estimate; where an error memory ``M``
+        was measured, what was spent before fades by ``exp(−h/M)`` (as ``pc``'s sum does)."""
+        memory = tr.policy.memory
+        fade = math.exp(-h / memory) if math.isfinite(memory) else 1.0
+        tr.spent_out = fade * tr.spent_out + verdict.spent_out
+        tr.spent_in = fade * tr.spent_in + verdict.spent_in
+        if fade < 1.0:
+            self._peak = max(self._peak, self._estimate_now())
 
     def _accepted_trial(self, k: int, t: float, landing: float) -> tuple[tuple, list]:
         """Trial steps of ``k`` from ``t`` until one is accepted: ``(token, h, lands, y,
@@ -872,6 +910,7 @@ class Multirate:
             tr.states[at] = self._guard(k, tr.t, self.system.models[k].save_state)
         t = tr.times[at]
         tr.segment = at
+        self._memory_of[k].forget()
         self.state_fired.append(Event(t, tr.name, kind, payload))
         if sum(e.t == t for e in self.state_fired) > MAX_EVENTS:
             names = ", ".join(sorted({e.source for e in self.state_fired if e.t == t}))
@@ -974,6 +1013,9 @@ class Multirate:
             slope = self._slope(k, t0)
             tr.slopes = [slope] if slope is not None else []
             tr.policy.start(t0, until)
+        for memory in self.memories:
+            memory.reset(t0, until)
+        self._peak = 0.0
 
     def actors(self, kernel: Kernel, on_step: Any = None) -> list[Actor]:
         """One actor per sub-model for the run kernel (the race of appendix C: whoever is
@@ -1015,6 +1057,7 @@ class Multirate:
                 bisect.insort(cuts, t)
         for other in self.tracks:
             other.segment = len(other.times) - 1
+        self._memory_of[k].forget()
         return Event(t, tr.name, kind, {p.name: float(v) for p, v in zip(model.outputs, new)})
 
     def _woken(self) -> list[Actor]:
@@ -1054,9 +1097,13 @@ class Multirate:
         A sub-model's outputs are wrong by what its inputs were wrong: the interpolation errors
         of its partners' trajectories times its sensitivity (each partner's step control
         estimates exactly that, per step) plus what its own steps failed to resolve of its
-        inputs. Summed over the run per receiver, as if no error ever decayed; the largest
-        receiver's sum is the estimate.
+        inputs. Summed over the run per receiver, as if no error ever decayed, except where
+        an error memory was measured (:mod:`~cosimstep.race_memory`): there the sums fade
+        (:meth:`_spend`), and the estimate is the largest receiver's sum at its largest.
         """
+        return max(self._peak, self._estimate_now())
+
+    def _estimate_now(self) -> float:
         totals = [tr.spent_in + sum(self.tracks[s].spent_out for s in range(len(self.tracks))
                                     if tr.index in self.consumers[s])
                   for tr in self.tracks]
@@ -1159,8 +1206,10 @@ class _Stepper(Actor):
         landing = min(cuts[i], limit) if i < len(cuts) else limit
         if race.advance(self.k, landing) and landing < race.until:
             tr.segment = len(tr.times) - 1  # a time event: extrapolate from here on only
-            # the dynamics change here: step control starts again as at the run's start
+            # the dynamics change here: step control starts again as at the run's start,
+            # and the error memory is measured again
             tr.h = min(tr.h, race.h0)
+            race._memory_of[self.k].forget()
         race.watch(self.k)
         if race._on_step is not None:
             race._on_step(tr)

@@ -33,12 +33,15 @@ class ModelStats:
     gain_checks: int = 0
     """Multi-rate: calls that measured its sensitivity to its inputs again, one per input, when
     its steps had moved far from those it was measured on (``calls`` = accepted + rejected +
-    corrections + gain checks)."""
+    corrections + gain checks + probes)."""
+    probes: int = 0
+    """Multi-rate: calls made by the probes of the error memory (:mod:`cosimstep.race_memory`)."""
 
     def to_dict(self) -> dict[str, Any]:
         s = self.step_sizes
         return {"calls": self.calls, "accepted": self.accepted, "rejected": self.rejected,
                 "corrections": self.corrections, "gain_checks": self.gain_checks,
+                "probes": self.probes,
                 "h_min": float(s.min()) if s.size else None,
                 "h_max": float(s.max()) if s.size else None}
 

@@ -334,9 +334,13 @@ class MultiRate(Scheme):
                              f"--tol 1e-4 or --controller pc); '{controller.name}' has no "
                              "tolerance")
         h0 = getattr(controller, "h0", None) or 1e-4 * (until - t0)
+        # the error memory is probed as the controller would probe it (pc: every 20 accepted
+        # steps once known, probe_every=0 off; the other controllers do not probe)
+        probe = getattr(controller, "probe", None)
         self.race = Multirate(compiled, policy, min(max(h0, policy.hmin), policy.hmax),
                               order=master.extrapolation, interpolation=master.interpolation,
-                              resync=master.resync)
+                              resync=master.resync,
+                              probe_every=probe.every if probe is not None else 0)
         self.events = events
         self._behind = t0
         self.fired: list[Event] = []
@@ -393,7 +397,7 @@ class MultiRate(Scheme):
                                       np.array([h for h in tr.steps if h > 0]),
                                       np.asarray(tr.times),
                                       np.array(tr.rows).reshape(len(tr.times), -1),
-                                      tr.replaced, tr.gain_checks)
+                                      tr.replaced, tr.gain_checks, tr.probes)
                   for tr in tracks}
         steps = np.concatenate([np.array([h for h in tr.steps if h > 0]) for tr in tracks]) \
             if tracks else np.zeros(0)

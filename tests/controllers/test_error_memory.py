@@ -43,11 +43,11 @@ def test_an_oscillation_seen_on_its_flank_is_not_taken_for_decay(phase) -> None:
 def test_the_memory_is_the_longest_of_the_last_window_and_the_run_until_then() -> None:
     probe = ErrorMemory(every=1, window=3)
     probe.reset(0.0, 10.0)
-    probe.measured += [(1.0, 0.5), (2.0, 0.2)]
+    probe.measured += [(1.0, 0.5, 0.1), (2.0, 0.2, 0.1)]
     assert probe.memory == math.inf
-    probe.measured += [(3.0, 0.3)]
+    probe.measured += [(3.0, 0.3, 0.1)]
     assert probe.memory == 0.5
-    probe.measured += [(4.0, 0.1)]
+    probe.measured += [(4.0, 0.1, 0.1)]
     assert probe.memory == 0.3
     probe.forget()  # an event: measured again from scratch
     assert probe.memory == math.inf and not probe.due(5.0)
@@ -66,13 +66,26 @@ def test_until_the_memory_is_known_the_probes_follow_each_other() -> None:
     assert not accept(5, 0.01) and accept(1, 0.01)  # after `steps`, not `every` steps
     for t in (0.01, 0.02, 0.03):  # three in a row, whatever the time between
         probe._since, probe._last = 0, t
-        probe.measured.append((t, 1.0))
+        probe.measured.append((t, 1.0, 0.1))
         if len(probe.measured) < 3:
             assert accept(6, t + 0.001)
     assert not accept(6, 0.04)  # known: now `every` steps and 2.5 s apart
     assert not accept(14, 2.0) and accept(0, 2.6)
     probe.forget()  # an event: measured again at once
     assert accept(6, 3.0)
+
+
+def test_no_decay_seen_over_a_shorter_horizon_than_the_step_is_no_evidence() -> None:
+    probe = ErrorMemory(every=20, steps=6, window=3)
+    probe.reset(0.0, 10.0)
+    probe.measured += [(0.1, 9.0, 0.006), (0.2, 0.5, 0.003), (0.3, 9.0, 0.012)]
+    assert probe.memory == 9.0
+    probe.due(0.5, 0.01)  # steps of 0.01 s: the first probe saw nothing fade over 0.006 s
+    assert [t for t, _, _ in probe.measured] == [0.2, 0.3] and probe.memory == math.inf
+    for _ in range(6):
+        probe.accepted()
+    assert probe.due(0.5, 0.1)  # too few left: probed again soon (after `steps`)
+    assert [t for t, _, _ in probe.measured] == [0.2]  # decay seen is kept
 
 
 def _pump(tol: float, seed: int) -> cs.SimulationResult:
@@ -122,3 +135,17 @@ def test_pc_spends_the_tolerance_on_a_system_that_forgets(name, tol, options) ->
 def test_an_undamped_system_is_not_given_a_short_memory() -> None:
     result = _run("two_mass_stiff", 1e-5)
     assert result.error.max_scaled / 1e-5 <= 10.0
+
+
+def test_a_decay_that_scatters_is_carried_on_at_its_slowest_rate() -> None:
+    # a fast and a slow mode (300 /s, 2 /s), the last sample 3 % low: the last interval reads
+    # 5.0 /s, the one before 2.0 /s; the tail is carried on at the slower (a rate read too fast
+    # would overspend the tolerance)
+    phi = 0.5 * np.exp(-300.0 * STEPS) + 0.5 * np.exp(-2.0 * STEPS)
+    phi[-1] *= 0.97
+    rates = -np.diff(np.log(phi[1:])) / np.diff(STEPS[1:])
+    assert rates[-1] > 2.0 * rates.min()
+    rest = 10.0 - STEPS[-1]
+    sampled = float(np.sum(0.5 * (phi[1:] + phi[:-1]) * np.diff(STEPS)))
+    slowest = sampled + phi[-1] * -math.expm1(-rates.min() * rest) / rates.min()
+    assert _memory(STEPS, phi, 10.0) == pytest.approx(slowest, rel=1e-12)

@@ -71,11 +71,13 @@ def test_multirate_lets_the_thermal_models_step_past_the_network() -> None:
     # before a rollback's consumers went back only to where the trajectory changed, partners
     # in a cycle rolled each other back one step per hop, down to the last event: 4,524 calls
     # and 54 s for this minute of plant time (826 calls, 10 s after)
+    # (the error memory's probes step every sub-model alike, so they are left out: measured
+    # 1,531 calls with 526 by the probes; err/tol 0.22, 0.025 without the memory in 1,092)
     result, _, _ = run(SHORT, until=60.0, master="multirate", tol=1e-3)
     assert result.status == "ok", result.message
     assert result.error.max_scaled < 10 * 1e-3
-    calls = result.calls
-    assert sum(calls.values()) < 1500, calls
+    calls = {n: m.calls - m.probes for n, m in result.models.items()}
+    assert sum(calls.values()) < 1100, calls
     # minutes-long zone dynamics against the 10 ms network: the zones ride on far fewer calls
     assert all(calls["network"] > 3 * calls[z] for z in ("zone1", "zone2", "zone3", "chiller"))
 

@@ -43,7 +43,7 @@ def test_mixed_pendulum_slow_bar_calls_less_and_error_tracks_tol(mixed) -> None:
         # every call is an accepted step, a rejected attempt, a correction re-run or a
         # measurement of its gain
         assert stats.calls == stats.accepted + stats.rejected + stats.corrections \
-            + stats.gain_checks, name
+            + stats.gain_checks + stats.probes, name
         assert result.calls[name] == stats.calls
     assert result.calls_total == sum(m.calls for m in result.models.values())
     assert len(result.models["bar1"].step_sizes) == slow.accepted

@@ -128,7 +128,7 @@ def test_multirate_measures_a_stiff_receivers_gain_on_the_steps_it_takes() -> No
     assert result.models["fast"].gain_checks > 0
     for stats in result.models.values():
         assert stats.calls == stats.accepted + stats.rejected + stats.corrections \
-            + stats.gain_checks
+            + stats.gain_checks + stats.probes
 
 
 def test_a_sub_model_failing_on_a_gain_check_loses_the_measurement_not_the_run(

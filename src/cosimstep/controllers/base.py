@@ -9,6 +9,7 @@ small class registered by name.
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
 from abc import ABC, abstractmethod
@@ -246,7 +247,8 @@ class StepPolicy:
         is smallest when every step makes the same error, so a step may spend
         ``cancellation × tol / N`` with ``N`` the steps taken plus those left at the current
         length: per unit time where the steps are short (a boundary layer is paid for by its own
-        length, not by every later step), per step once the run has a history. An earlier form
+        length, not by every later step), per step once the run has a history. Where an error
+        memory is measured, ``N`` counts the steps within the memory instead (:meth:`_steps`). An earlier form
         (the share scaled by the running time-average of ``1/h²``) let 100 steps of 1e-6 s in
         a boundary layer shrink every later step's share 1000× (delivered 7e-4 × tol).
         Off by default for the synchronous controllers: it assumes every local error is carried
@@ -292,6 +294,7 @@ class StepPolicy:
         self._means: tuple[float, float] | None = None  # of the accepted ratios: r, log r
         self._count = 0  # accepted steps
         self._elapsed = 0.0
+        self._ends: list[float] = []  # elapsed time at each accepted step's end (distribute)
         self._rejected: tuple[float, float, float] | None = None  # t, h, estimate / tol
         self.floor = 0.0  # the estimates' noise floor, a share of the tolerance (:meth:`noise`)
         self.noise_steps = 0  # times a floor was recognised
@@ -302,7 +305,7 @@ class StepPolicy:
         self._previous = self.target  # neutral: the first accepted step is not pushed
         self._forecast, self._scatter, self._misses, self._means = None, None, 0, None
         self._last_c = None
-        self._count, self._elapsed = 0, 0.0
+        self._count, self._elapsed, self._ends = 0, 0.0, []
         self._rejected, self.floor, self.noise_steps = None, 0.0, 0
 
     @property
@@ -322,15 +325,26 @@ class StepPolicy:
             # an error is carried for the rest of the run, or for the measured error memory
             allowed = allowed * (self.cancellation * h / min(self._span, self.memory))
             if self.distribute:
-                # an equal share per step: the steps taken plus those left at this length
-                steps = self._count + max(self._span - self._elapsed, h) / h
-                allowed = allowed * self._span / (h * steps)
+                allowed = allowed * min(self._span, self.memory) / (h * self._steps(h))
         if self.floor > 0.0:  # the sub-models' noise is no step's error
             r = np.maximum(np.abs(error) - self.floor * self.scale(y), 0.0) / allowed
         else:
             r = np.abs(error) / allowed
         i = int(np.argmax(r)) if r.size else 0
         return (float(r[i]) if r.size else 0.0), i
+
+    def _steps(self, h: float) -> float:
+        """How many steps share the budget (``distribute``): those whose errors add up with
+        this one's. Without a measured memory that is every step of the run — the steps taken
+        plus those left at this length. Errors that fade within ``memory`` add up only with
+        the steps within ``memory`` of them: the steps taken in the last ``memory`` plus those
+        left to complete the first such window. Counting every step of the run there instead
+        shrank each share by the run's mean step over the current one: on a plant settling
+        after a failure, where the steps grow a hundredfold, to a few per cent of what the
+        memory allows."""
+        window = min(self._span, self.memory)
+        recent = len(self._ends) - bisect.bisect_right(self._ends, self._elapsed - window)
+        return recent + max(window - self._elapsed, h) / h
 
     def next_step(self, h: float, ratio: float, k: float, accepted: bool) -> float:
         """New step from the error ratio; ``k`` is the power of ``h`` the ratio scales with."""
@@ -354,6 +368,8 @@ class StepPolicy:
             self._previous = r
             self._count += 1
             self._elapsed += h
+            if self.distribute:
+                self._ends.append(self._elapsed)
         else:
             self._forecast = None  # the error model changed abruptly: forecast it anew
             factor = min(factor, 1.0)

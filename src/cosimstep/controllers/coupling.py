@@ -233,7 +233,8 @@ class PredictorCorrector(_PolicyController):
         token = ctx.save()
         y_p = ctx.step(t, h)
         probe = self.probe
-        token_p = ctx.save() if probe.due(t + h) else None  # a probe may start from here
+        token_p = ctx.save() if probe.due(t + h, h) else None  # a probe may start from here
+        self.policy.memory = probe.memory  # less, if measurements at shorter steps expired
         ctx.restore(token)
         y_c = _correct(ctx, t, h, y_p, q)
         rho = self._input_ratio(ctx, t, h, q, y_p, y_c)

@@ -56,7 +56,9 @@ class ErrorMemory:
             raise ValueError("need every >= 0 (0: off), steps >= 3, window >= 1, per_run >= 1")
         self.every, self.steps, self.window = int(every), int(steps), int(window)
         self.per_run = int(per_run)
-        self.measured: list[tuple[float, float]] = []  # (time, memory [s]) of every probe
+        # (time, memory [s], horizon [s]) of the probes that still hold (see :meth:`due`)
+        self.measured: list[tuple[float, float, float]] = []
+        self.made = 0  # probes that measured something since the run started
         self._since = 0
         self._last = -math.inf
         self._gap = 0.0
@@ -71,6 +73,7 @@ class ErrorMemory:
     def reset(self, t0: float, t_end: float) -> None:
         """A run starts: no measurement yet, the first probe after `steps` accepted steps."""
         self.measured.clear()
+        self.made = 0
         self._since, self._last = 0, -math.inf
         self._gap = (t_end - t0) / self.per_run
         self._span, self._end = t_end - t0, t_end
@@ -80,18 +83,31 @@ class ErrorMemory:
         """The memory the controller may use [s]: the longest of the last measurements."""
         if self.every == 0 or len(self.measured) < self.window:
             return math.inf
-        return max(m for _, m in self.measured[-self.window:])
+        return max(m for _, m, _ in self.measured[-self.window:])
 
-    def due(self, t: float) -> bool:
-        """Whether a step accepted at ``t`` is to be probed (save the predictor's state).
+    def due(self, t: float, h: float = 0.0) -> bool:
+        """Whether a step of ``h`` accepted at ``t`` is to be probed (save the predictor's
+        state).
 
         Until :attr:`window` measurements exist (at the start and after an event) every step
         shares the tolerance over the run's whole length, the dearest assumption, so the
         probes come as soon as they can — each :attr:`steps` accepted steps after the last,
         whatever the time between — and the spacing (:attr:`every`, 1/:attr:`per_run` of the
         run) applies only once the memory is known, to keep it up to date at little cost.
+
+        A measurement that saw no decay to speak of (half the run or more) over a horizon
+        shorter than the step now taken is dropped first: that nothing faded within a span
+        shorter than one of today's steps says nothing about the errors these steps make.
+        Out of a boundary layer the steps grow a hundredfold; the first probes, made at its
+        small steps, saw the layer's slow part standing still and would otherwise have
+        stopped the probing for the whole run (:meth:`_settled`). A measurement that saw
+        decay is kept: it is evidence that errors fade, and the window's longest is used.
         """
-        if self.every == 0 or len(self.measured) >= self.per_run or self._settled():
+        if h > 0.0 and any(m >= 0.5 * self._span and horizon < h
+                           for _, m, horizon in self.measured):
+            self.measured = [e for e in self.measured
+                             if e[1] < 0.5 * self._span or e[2] >= h]
+        if self.every == 0 or self.made >= self.per_run or self._settled():
             return False
         if len(self.measured) < self.window:
             return self._since >= self.steps
@@ -102,7 +118,7 @@ class ErrorMemory:
         probe costs would not buy a looser step worth them (an undamped system). Two, not a
         window: stopping early only keeps the whole-run budget, which is safe."""
         last = self.measured[-2:]
-        return len(last) == 2 and all(m >= 0.5 * self._span for _, m in last)
+        return len(last) == 2 and all(m >= 0.5 * self._span for _, m, _ in last)
 
     def forget(self) -> None:
         """An event: the dynamics after it are not those the probes measured (a plant at rest
@@ -147,13 +163,14 @@ class ErrorMemory:
         d = np.max(np.abs(paths[1] - paths[0]) / scale, axis=1)
         if not (d[0] > 0 and np.isfinite(d).all()):
             return
-        self.measured.append((t, _memory(times - t, d / d[0], self._span)))
+        self.measured.append((t, _memory(times - t, d / d[0], self._span), times[-1] - t))
+        self.made += 1
 
 
 def _memory(s: np.ndarray, phi: np.ndarray, span: float) -> float:
     """``∫₀^span φ`` for a perturbation's relative size ``φ`` sampled at the offsets ``s``.
 
-    Trapezoids over the samples, then the tail: decaying at the last interval's rate when the
+    Trapezoids over the samples, then the tail: decaying at the slowest rate seen when the
     samples after the first (the first interval may still hold a fast transient) are
     log-convex (see the module docstring), held at the last value otherwise.
     """
@@ -180,8 +197,9 @@ def _decay_rate(s: np.ndarray, phi: np.ndarray) -> float:
     """The rate the tail of ``φ`` decays at when ``φ`` over ``s`` looks like decay, else 0.
 
     Decay means a log-convex drop (see :data:`CONVEXITY_SLACK`); its local rate then falls
-    towards the slowest mode's, so the last interval's rate, the smallest seen, is the one
-    carried on.
+    towards the slowest mode's, so the smallest rate seen over the intervals is the one carried
+    on — the last interval's, unless the samples scatter (then the slowest of them: a rate read
+    too fast overspends the tolerance, one read too slow only spends calls).
     """
     if len(phi) < 3 or not (phi > 0).all():
         return 0.0
@@ -193,4 +211,4 @@ def _decay_rate(s: np.ndarray, phi: np.ndarray) -> float:
     chord = log[0] + (log[-1] - log[0]) * (s[mid] - s[0]) / (s[-1] - s[0])
     if log[mid] - chord > CONVEXITY_SLACK * drop:
         return 0.0
-    return float(log[-2] - log[-1]) / float(s[-1] - s[-2])
+    return max(float(np.min(-np.diff(log) / np.diff(s))), 0.0)
