@@ -179,17 +179,8 @@ class Multirate:
         # that reach it) and lands on
         self.cuts: list[list[float]] = [[] for _ in system.models]
         self.resync = resync
-        # continuous sub-models' discrete outputs (local columns): a change is a state event
-        self.changing = {k: np.array([i for i, p in enumerate(m.outputs) if p.discrete])
-                         for k, m in enumerate(system.models)
-                         if not isinstance(m, DiscreteEventModel)
-                         and any(p.discrete for p in m.outputs)}
         self.reach = [self._downstream(k) for k in range(len(system.models))]
-        # threshold-type sub-models (a state event on their inputs) and the sub-models they read
-        self.monitors = {k: sorted(self._sources(k)) for k, m in enumerate(system.models)
-                         if isinstance(m, DiscreteEventModel)
-                         and type(m).indicator is not DiscreteEventModel.indicator}
-        self.checked = dict.fromkeys(self.monitors, -math.inf)  # searched up to this time
+        self._discrete_parts()
         self.state_fired: list[Event] = []  # state events found inside steps, in order found
         self.until = math.inf
         self._requeue: list[int] = []  # sub-models rolled back since the kernel last saw them
@@ -203,6 +194,20 @@ class Multirate:
         self.memories = [RaceMemory(self, group, probe_every) for group in self._groups()]
         self._memory_of = {k: m for m in self.memories for k in m.members}
         self._peak = 0.0  # the largest estimate so far (it fades where a memory is measured)
+
+    def _discrete_parts(self) -> None:
+        """The outputs whose changes are events, and the sub-models that watch for them."""
+        models = self.system.models
+        # continuous sub-models' discrete outputs (local columns): a change is a state event
+        self.changing = {k: np.array([i for i, p in enumerate(m.outputs) if p.discrete])
+                         for k, m in enumerate(models)
+                         if not isinstance(m, DiscreteEventModel)
+                         and any(p.discrete for p in m.outputs)}
+        # threshold-type sub-models (a state event on their inputs) and the sub-models they read
+        self.monitors = {k: sorted(self._sources(k)) for k, m in enumerate(models)
+                         if isinstance(m, DiscreteEventModel)
+                         and type(m).indicator is not DiscreteEventModel.indicator}
+        self.checked = dict.fromkeys(self.monitors, -math.inf)  # searched up to this time
 
     def _sources(self, k: int) -> set[int]:
         """The sub-models ``k`` reads (an unconnected input reads a constant: gain 0)."""

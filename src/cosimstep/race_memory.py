@@ -71,7 +71,8 @@ class RaceMemory:
         self._share()
 
     def forget(self) -> None:
-        """An event: the dynamics after it are not those measured (see :meth:`ErrorMemory.forget`)."""
+        """An event: the dynamics after it are not those measured
+        (:meth:`ErrorMemory.forget`)."""
         self.probes.forget()
         self._share()
 

@@ -248,9 +248,10 @@ class StepPolicy:
         ``cancellation × tol / N`` with ``N`` the steps taken plus those left at the current
         length: per unit time where the steps are short (a boundary layer is paid for by its own
         length, not by every later step), per step once the run has a history. Where an error
-        memory is measured, ``N`` counts the steps within the memory instead (:meth:`_steps`). An earlier form
-        (the share scaled by the running time-average of ``1/h²``) let 100 steps of 1e-6 s in
-        a boundary layer shrink every later step's share 1000× (delivered 7e-4 × tol).
+        memory is measured, ``N`` counts the steps within the memory instead (:meth:`_steps`).
+        An earlier form (the share scaled by the running time-average of ``1/h²``) let 100
+        steps of 1e-6 s in a boundary layer shrink every later step's share 1000× (delivered
+        7e-4 × tol).
         Off by default for the synchronous controllers: it assumes every local error is carried
         to the end, as the plain sum does, and measured no better there (docs/concepts.md).
     """
