@@ -23,7 +23,9 @@ error of this trajectory. The interpolation error is estimated for free from the
 the corrections, and the step follows from the same global-error policy as the synchronous
 controllers (:class:`~cosimstep.controllers.StepPolicy`). Grey-box sub-models are also checked
 for steps too long to resolve their own trajectory (aliasing), which no sample-based estimate
-can see.
+can see. How long an error persists in the coupled system (its *error memory*) is measured as
+the synchronous ``pc`` measures it, by probes made after bringing the sub-models to one time
+(:mod:`cosimstep.race_memory`); the tolerance is then shared over that memory.
 """
 
 from __future__ import annotations
