@@ -149,3 +149,20 @@ def test_a_decay_that_scatters_is_carried_on_at_its_slowest_rate() -> None:
     sampled = float(np.sum(0.5 * (phi[1:] + phi[:-1]) * np.diff(STEPS)))
     slowest = sampled + phi[-1] * -math.expm1(-rates.min() * rest) / rates.min()
     assert _memory(STEPS, phi, 10.0) == pytest.approx(slowest, rel=1e-12)
+
+
+def test_distribute_shares_over_the_steps_whose_errors_add_up() -> None:
+    from cosimstep.controllers.base import StepPolicy
+
+    policy = StepPolicy(tol=1e-4, distribute=True, cancellation=3.0, target=0.5)
+    policy.start(0.0, 10.0)
+    for h in [0.01] * 100 + [0.1] * 50:  # 6 s in 150 steps, short ones first
+        policy.next_step(h, 0.5, 5, True)
+    # no memory: every step of the run, those taken and those left at this length
+    assert policy._steps(0.1) == pytest.approx(150 + 4.0 / 0.1)
+    # errors that fade within 2.05 s add up with the steps of the last 2.05 s only (21 of
+    # 0.1 s), not with the 100 short ones at the start
+    policy.memory = 2.05
+    assert policy._steps(0.1) == pytest.approx(21 + 1)
+    error, y = np.array([1e-6]), np.array([0.0])
+    assert policy.ratio(error, y, 0.1)[0] == pytest.approx(1e-6 / (1e-4 * 3.0 / 22))

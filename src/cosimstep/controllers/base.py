@@ -343,9 +343,10 @@ class StepPolicy:
         shrank each share by the run's mean step over the current one: on a plant settling
         after a failure, where the steps grow a hundredfold, to a few per cent of what the
         memory allows."""
-        window = min(self._span, self.memory)
-        recent = len(self._ends) - bisect.bisect_right(self._ends, self._elapsed - window)
-        return recent + max(window - self._elapsed, h) / h
+        if self.memory >= self._span:
+            return self._count + max(self._span - self._elapsed, h) / h
+        recent = len(self._ends) - bisect.bisect_right(self._ends, self._elapsed - self.memory)
+        return recent + max(self.memory - self._elapsed, h) / h
 
     def next_step(self, h: float, ratio: float, k: float, accepted: bool) -> float:
         """New step from the error ratio; ``k`` is the power of ``h`` the ratio scales with."""
