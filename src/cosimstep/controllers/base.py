@@ -342,7 +342,8 @@ class StepPolicy:
         left to complete the first such window. Counting every step of the run there instead
         shrank each share by the run's mean step over the current one: on a plant settling
         after a failure, where the steps grow a hundredfold, to a few per cent of what the
-        memory allows."""
+        memory allows. (The window is in accepted time, which a multi-rate track's re-runs
+        push past the run's length; so without a memory the count stays the run's.)"""
         if self.memory >= self._span:
             return self._count + max(self._span - self._elapsed, h) / h
         recent = len(self._ends) - bisect.bisect_right(self._ends, self._elapsed - self.memory)
