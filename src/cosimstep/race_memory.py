@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cosimstep.controllers.memory import ErrorMemory
-from cosimstep.errors import SubModelError
+from cosimstep.errors import EndOfSimulation, SubModelError
 from cosimstep.extrapolation import evaluate_small, taylor_coefficients
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -95,7 +95,10 @@ class RaceMemory:
         self._count = 0
         self.probes.accepted()
         t0 = min(tr.t for tr in live)
-        h = max(tr.h for tr in live)
+        models = self.race.system.models
+        # the longest step a member is about to take, within every member's step limits
+        h = min(max(tr.h for tr in live),
+                *(min(models[tr.index].capabilities.max_step, tr.policy.hmax) for tr in live))
         due = self.probes.due(t0, h)
         self._share()  # measurements made over a shorter horizon than h may have expired
         if due:
@@ -107,6 +110,9 @@ class RaceMemory:
         if end > race.until or any(t0 < c <= end for k in self.members for c in race.cuts[k]):
             return  # past the end, or across an event: not now
         models = race.system.models
+        # the next probe is due `every` rounds from this attempt, whatever comes of it: a probe
+        # that fails would otherwise be tried again on every round
+        self.probes.attempted(t0)
         now = {tr.index: race._guard(tr.index, tr.t, models[tr.index].save_state)
                for tr in live}
         calls = [tr.calls for tr in live]
@@ -117,12 +123,14 @@ class RaceMemory:
         except SubModelError as exc:  # a measurement lost, not the run (a hung call ends it)
             if exc.hung:
                 raise
+        except EndOfSimulation:  # a sub-model that ends the run ahead of it: not now
+            pass
         finally:
-            for k, token in now.items():
-                race._guard(k, race.tracks[k].t, models[k].restore_state, token)
             for tr, before in zip(live, calls):
                 tr.probes += tr.calls - before
                 self.calls += tr.calls - before
+            for k, token in now.items():
+                race._guard(k, race.tracks[k].t, models[k].restore_state, token)
         self._share()
 
     def _align(self, live: list[Track], t0: float) -> np.ndarray | None:
@@ -149,11 +157,17 @@ class RaceMemory:
         return outputs
 
     def _row(self, t: float) -> np.ndarray:
-        """Every output at ``t`` read from the trajectories (no call)."""
+        """The members' outputs at ``t`` read from their trajectories (no call), in a row of
+        the system's outputs; the other groups' columns are 0. Nothing a member reads lies
+        outside its group, and another group's trajectory may not reach ``t`` at all (a
+        partner rolled back behind an event of its own)."""
         race = self.race
         at = np.array([t])
-        return np.array([race._trajectory(j, at)[0][0]
-                         for j in range(race.system.n_outputs)])
+        row = np.zeros(race.system.n_outputs)
+        for k in self.members:
+            for j in range(race.system.output_slices[k].start, race.system.output_slices[k].stop):
+                row[j] = race._trajectory(j, at)[0][0]
+        return row
 
     def _history(self, t0: float, h: float, start: np.ndarray) -> list[tuple[float, np.ndarray]]:
         """The points before ``t0`` the probe extrapolates from, ``h`` apart, within the

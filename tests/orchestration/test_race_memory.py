@@ -114,3 +114,31 @@ def test_the_multirate_pump_delivers_its_tolerance(examples, tol) -> None:
                          MULTIRATE, reference=spec.reference)
     assert result.success, result.message
     assert 0.3 <= result.error.max_scaled / tol <= 10.0, result.error.max_scaled / tol
+
+
+def test_a_probe_reads_only_its_own_group(examples) -> None:
+    # two branches that exchange nothing; the ball's contacts cut the damper's trajectory, and
+    # a rolled-back damper may stand behind its newest cut while the other branch is probed
+    # past it: reading the damper there once ended the run with a TypeError
+    spec = cs.load_system(examples / "two_branches_events.toml")
+    result = cs.simulate(spec.system, 20.0, cs.make_controller("pc", 1e-2, 3e-4), MULTIRATE,
+                         reference=spec.reference)
+    assert result.success, result.message
+
+
+def test_a_probe_that_fails_is_not_tried_again_at_once(races, monkeypatch) -> None:
+    attempts: list[float] = []
+
+    def fail(self, live, t0, h, start):
+        attempts.append(t0)
+        raise cs.SubModelError(live[0].name, t0, "refuses to be probed", h)
+
+    monkeypatch.setattr(race_memory.RaceMemory, "_measure", fail)
+    result = _run("two_mass_damped", 1e-3)
+    assert result.success, result.message
+    tracks = races[0].race.tracks
+    rounds = sum(tr.accepted for tr in tracks) / len(tracks)  # a round: a step per sub-model
+    # a probe every `steps` (6) rounds counted as steps are accepted, re-runs included — not one
+    # a round, as when a failed probe left the schedule where it was (measured 20 in 97)
+    assert 3 <= len(attempts) <= rounds / 3
+    assert races[0].probes.measured == [] and races[0].memory == math.inf

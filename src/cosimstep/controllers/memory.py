@@ -130,6 +130,11 @@ class ErrorMemory:
     def accepted(self) -> None:
         self._since += 1
 
+    def attempted(self, t: float) -> None:
+        """A probe was started at ``t``: the next one is counted from here, whether this one
+        measures anything or not."""
+        self._since, self._last = 0, t
+
     def probe(self, t: float, h: float, kept: tuple[Any, np.ndarray],
               other: tuple[Any, np.ndarray], scale: np.ndarray, step: Step,
               restore: Callable[[Any], None]) -> None:
