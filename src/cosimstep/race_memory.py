@@ -58,12 +58,18 @@ class RaceMemory:
         self.race = race
         self.members = list(members)
         self.probes = ErrorMemory(every=every)
-        self.calls = 0  # sub-model calls the probes made (also in each track's calls)
+        # the continuous members: what a probe steps (a discrete-event model's outputs are held)
+        self.live = [race.tracks[k] for k in self.members if not race.tracks[k].discrete]
         self._count = 0
 
     @property
     def memory(self) -> float:
         return self.probes.memory
+
+    @property
+    def calls(self) -> int:
+        """Sub-model calls the probes made (also in each member's calls)."""
+        return sum(tr.probes for tr in self.live)
 
     def reset(self, t0: float, until: float) -> None:
         self.probes.reset(t0, until)
@@ -76,17 +82,20 @@ class RaceMemory:
         self.probes.forget()
         self._share()
 
-    def _live(self) -> list[Track]:
-        return [tr for tr in (self.race.tracks[k] for k in self.members) if not tr.discrete]
-
     def _share(self) -> None:
-        for tr in self._live():
+        for tr in self.live:
             tr.policy.memory = self.probes.memory
+
+    def _save(self, t: float) -> dict[int, Any]:
+        """Every continuous member's state (each at its own time; ``t`` names the call)."""
+        models = self.race.system.models
+        return {tr.index: self.race._guard(tr.index, t, models[tr.index].save_state)
+                for tr in self.live}
 
     def accepted(self) -> None:
         """A sub-model's step was accepted: count a round per continuous sub-model's worth of
         steps, and probe when one is due."""
-        live = self._live()
+        live = self.live
         if not live or self.probes.every == 0:
             return
         self._count += 1
@@ -113,8 +122,7 @@ class RaceMemory:
         # the next probe is due `every` rounds from this attempt, whatever comes of it: a probe
         # that fails would otherwise be tried again on every round
         self.probes.attempted(t0)
-        now = {tr.index: race._guard(tr.index, tr.t, models[tr.index].save_state)
-               for tr in live}
+        now = self._save(t0)
         calls = [tr.calls for tr in live]
         try:
             start = self._align(live, t0)
@@ -128,7 +136,6 @@ class RaceMemory:
         finally:
             for tr, before in zip(live, calls):
                 tr.probes += tr.calls - before
-                self.calls += tr.calls - before
             for k, token in now.items():
                 race._guard(k, race.tracks[k].t, models[k].restore_state, token)
         self._share()
@@ -162,11 +169,9 @@ class RaceMemory:
         outside its group, and another group's trajectory may not reach ``t`` at all (a
         partner rolled back behind an event of its own)."""
         race = self.race
-        at = np.array([t])
         row = np.zeros(race.system.n_outputs)
         for k in self.members:
-            for j in range(race.system.output_slices[k].start, race.system.output_slices[k].stop):
-                row[j] = race._trajectory(j, at)[0][0]
+            row[race.system.output_slices[k]] = race.values_at(k, np.array([t]))[0]
         return row
 
     def _history(self, t0: float, h: float, start: np.ndarray) -> list[tuple[float, np.ndarray]]:
@@ -188,8 +193,7 @@ class RaceMemory:
         race = self.race
         models = race.system.models
         history = self._history(t0, h, start)
-        at_t0 = {tr.index: race._guard(tr.index, t0, models[tr.index].save_state)
-                 for tr in live}
+        at_t0 = self._save(t0)
 
         def restore(token: dict[int, Any]) -> None:
             for k, state in token.items():
@@ -216,11 +220,9 @@ class RaceMemory:
         # coupling errors take — the perturbation ``pc``'s probe starts from
         restore(at_t0)
         y_p = step(t0, h, ())
-        predictor = ({tr.index: race._guard(tr.index, t0 + h, models[tr.index].save_state)
-                      for tr in live}, y_p)
+        predictor = (self._save(t0 + h), y_p)
         restore(at_t0)
         y_c = step(t0, h, ((t0 + h, y_p),), race.order + 1)
-        corrector = ({tr.index: race._guard(tr.index, t0 + h, models[tr.index].save_state)
-                      for tr in live}, y_c)
+        corrector = (self._save(t0 + h), y_c)
         scale = live[0].policy.scale(y_c)
         self.probes.probe(t0 + h, h, corrector, predictor, scale, step, restore)
