@@ -100,3 +100,27 @@ def test_the_steps_after_a_failure_are_not_sized_by_the_plant_before_it(seed: in
     run = _pump(tol, seed)
     assert run.success and len(run.events) == 1
     assert run.error.max_scaled <= 1.0 * tol, run.error.max_scaled / tol
+
+
+def test_the_multirate_steps_follow_a_trend_only_where_the_system_settles() -> None:
+    """A multi-rate track's policy keeps ``trend`` and ``unbiased`` as asked but acts on them
+    only while its group's probes measured an error memory below half the run: without that
+    evidence of settling it is the PI control, step for step."""
+    from cosimstep.multirate import _copy_policy
+
+    pi, _ = _closed_loop(_copy_policy(StepPolicy()), 0.0, drift=math.exp(-0.2), steps=60)
+    asked = _copy_policy(StepPolicy(**BOTH))
+    asked.start(0.0, 100.0)
+    unmeasured, followed = _closed_loop(asked, 0.0, drift=math.exp(-0.2), steps=60)
+    assert followed == 0 and np.array_equal(unmeasured, pi)
+    for memory, settles in ((60.0, False), (40.0, True)):  # half the run: 50
+        asked = _copy_policy(StepPolicy(**BOTH))
+        asked.start(0.0, 100.0)
+        asked.memory = memory
+        ratios, followed = _closed_loop(asked, 0.0, drift=math.exp(-0.2), steps=60)
+        if settles:  # the drift is followed: the ratios rise to e^(-0.2) of the target
+            assert followed >= 50
+            assert np.allclose(ratios[-20:], math.exp(-0.2) * asked.target, rtol=0.01)
+            assert max(pi[-20:]) < 0.6 * asked.target
+        else:
+            assert followed == 0 and np.array_equal(ratios, pi)

@@ -42,6 +42,10 @@ import numpy as np
 
 from cosimstep.errors import SubModelError
 
+NO_DECAY = 0.5
+"""A memory of this share of the run or more counts as no decay to speak of: the probe saw the
+perturbation stay about its size (an undamped system), not fade."""
+
 Step = Callable[[float, float, tuple[tuple[float, np.ndarray], ...]], np.ndarray]
 """``step(t, h, points)``: one master step from the current state, extrapolating from the
 run's history plus ``points`` (time, outputs) after it."""
@@ -103,10 +107,10 @@ class ErrorMemory:
         stopped the probing for the whole run (:meth:`_settled`). A measurement that saw
         decay is kept: it is evidence that errors fade, and the window's longest is used.
         """
-        if h > 0.0 and any(m >= 0.5 * self._span and horizon < h
+        if h > 0.0 and any(m >= NO_DECAY * self._span and horizon < h
                            for _, m, horizon in self.measured):
             self.measured = [e for e in self.measured
-                             if e[1] < 0.5 * self._span or e[2] >= h]
+                             if e[1] < NO_DECAY * self._span or e[2] >= h]
         if self.every == 0 or self.made >= self.per_run or self._settled():
             return False
         if len(self.measured) < self.window:
@@ -118,7 +122,7 @@ class ErrorMemory:
         probe costs would not buy a looser step worth them (an undamped system). Two, not a
         window: stopping early only keeps the whole-run budget, which is safe."""
         last = self.measured[-2:]
-        return len(last) == 2 and all(m >= 0.5 * self._span for _, m, _ in last)
+        return len(last) == 2 and all(m >= NO_DECAY * self._span for _, m, _ in last)
 
     def forget(self) -> None:
         """An event: the dynamics after it are not those the probes measured (a plant at rest
