@@ -1215,9 +1215,9 @@ class _Stepper(Actor):
         if race.advance(self.k, landing) and landing < race.until:
             tr.segment = len(tr.times) - 1  # a time event: extrapolate from here on only
             # the dynamics change here: step control starts again as at the run's start,
-            # and the error memory is measured again
+            # and the error memory is measured again once the whole group is here
             tr.h = min(tr.h, race.h0)
-            race._memory_of[self.k].forget()
+            race._memory_of[self.k].landed(landing)
         race.watch(self.k)
         if race._on_step is not None:
             race._on_step(tr)

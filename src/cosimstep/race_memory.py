@@ -61,6 +61,7 @@ class RaceMemory:
         # the continuous members: what a probe steps (a discrete-event model's outputs are held)
         self.live = [race.tracks[k] for k in self.members if not race.tracks[k].discrete]
         self._count = 0
+        self._landed: float | None = None  # a time event some members have reached
 
     @property
     def memory(self) -> float:
@@ -74,7 +75,25 @@ class RaceMemory:
     def reset(self, t0: float, until: float) -> None:
         self.probes.reset(t0, until)
         self._count = 0
+        self._landed = None
         self._share()
+
+    def landed(self, t: float) -> None:
+        """A member's step landed on a time event at ``t``: the group forgets once every
+        continuous member has reached ``t``. The members reach an event one by one, and the
+        last may come long after the first (on the ship plant the damage model stood at its
+        event 135 s before the hydraulic network); forgetting at the first landing threw
+        away what the probes measured of the dynamics the others still had to cross, and
+        restarted the probing each time (a probe never crosses an event, so none measures
+        past it before every member is there)."""
+        self._landed = t if self._landed is None else min(self._landed, t)
+        self._reached()
+
+    def _reached(self) -> None:
+        if self._landed is not None and self.live \
+                and min(tr.t for tr in self.live) >= self._landed:
+            self._landed = None
+            self.forget()
 
     def forget(self) -> None:
         """An event: the dynamics after it are not those measured
@@ -98,6 +117,7 @@ class RaceMemory:
         live = self.live
         if not live or self.probes.every == 0:
             return
+        self._reached()
         self._count += 1
         if self._count < len(live):
             return
@@ -116,8 +136,9 @@ class RaceMemory:
     def _probe(self, live: list[Track], t0: float, h: float) -> None:
         race = self.race
         end = t0 + (self.probes.steps + 1) * h
-        if end > race.until or any(t0 < c <= end for k in self.members for c in race.cuts[k]):
-            return  # past the end, or across an event: not now
+        if end > race.until or end > race._kernel.limit() \
+                or any(t0 < c <= end for k in self.members for c in race.cuts[k]):
+            return  # past the end, or across an event (a discrete model's next): not now
         models = race.system.models
         # the next probe is due `every` rounds from this attempt, whatever comes of it: a probe
         # that fails would otherwise be tried again on every round
