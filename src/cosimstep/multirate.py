@@ -640,9 +640,13 @@ class Multirate:
         t, step_try, made = t0, h / pieces, 0
         gain = tr.gain if tr.gain is not None else INITIAL_GAIN
         model = self.system.models[k]
+        # a remainder this short is taken with the piece before it: at t = 200 s a remainder of
+        # 1e-9 of a 17 µs step is below one ulp, and a piece of one ulp has coinciding nodes
+        # (the ship plant once failed there with a ZeroDivisionError)
+        negligible = max(1e-9 * h, 1e-12 * max(1.0, abs(t_end)))
         while t < t_end:
             step = min(step_try, t_end - t)
-            if t_end - t - step < 1e-9 * h:
+            if t_end - t - step < negligible:
                 step = t_end - t
             u = inputs if inputs is not None else self.inputs_over(k, t, step)[0]
             if inputs is None and step > tr.policy.hmin:

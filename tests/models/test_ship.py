@@ -88,8 +88,9 @@ def test_multirate_at_tol_1e4_passes_the_hit_with_single_threaded_blas() -> None
     With single-threaded BLAS (as in Dask workers) the network's Radau solver lands a step
     at t = 200.000158 s where a valve input held constant deviated by ~1e-16 between the cubic
     the network follows and the valve's trajectory; its large gain made that 2.31 × the
-    allowed error at every step length, and the run failed at ``hmin``. Measured since: ok,
-    6,592 calls, error 0.51 × tol (multi-threaded: 6,620 calls, 0.24 × tol)."""
+    allowed error at every step length, and the run failed at ``hmin``. Later a re-run's last
+    piece of one ulp (2.8e-14 s at t = 200.00028 s) ended it with a ZeroDivisionError. Measured
+    since: ok, 7,186 calls, error 1.25 × tol (multi-threaded: 6,459 calls, 1.12 × tol)."""
     import json
     import os
     import subprocess
