@@ -642,8 +642,9 @@ class Multirate:
         model = self.system.models[k]
         # a remainder this short is taken with the piece before it: at t = 200 s a remainder of
         # 1e-9 of a 17 µs step is below one ulp, and a piece of one ulp has coinciding nodes
-        # (the ship plant once failed there with a ZeroDivisionError)
-        negligible = max(1e-9 * h, 1e-12 * max(1.0, abs(t_end)))
+        # (the ship plant once failed there with a ZeroDivisionError). A few dozen ulps, well
+        # below hmin: a rejected piece can still shrink below this and end at hmin
+        negligible = max(1e-9 * h, 64 * math.ulp(t_end))
         while t < t_end:
             step = min(step_try, t_end - t)
             if t_end - t - step < negligible:

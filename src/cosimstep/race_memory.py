@@ -28,6 +28,7 @@ decay — the safe side.
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -48,9 +49,10 @@ class RaceMemory:
     """Measures the error memory of a group of sub-models joined by connections (``members``,
     indices of the race's tracks) and hands it to their step controls.
 
-    ``memory`` is the measured memory [s] (``inf`` until :attr:`ErrorMemory.window` probes since
-    the start or the group's last event exist). :meth:`accepted` is told of every accepted step
-    of a member and probes when one is due. Groups that exchange nothing are probed apart: a
+    ``memory`` is the measured memory [s] (``inf`` until :attr:`ErrorMemory.window` probes exist
+    since the start, or since every continuous member reached the group's last event; a member
+    already past an event the others have still to reach steps with ``inf`` meanwhile).
+    :meth:`accepted` is told of every accepted step of a member and probes when one is due. Groups that exchange nothing are probed apart: a
     probe of one would otherwise call the other's sub-models, and each forgets at its own rate.
     """
 
@@ -61,7 +63,8 @@ class RaceMemory:
         # the continuous members: what a probe steps (a discrete-event model's outputs are held)
         self.live = [race.tracks[k] for k in self.members if not race.tracks[k].discrete]
         self._count = 0
-        self._landed: float | None = None  # a time event some members have reached
+        self._landed: float | None = None  # an event some members have reached, not all
+        self._forgotten = -math.inf  # the last event the whole group reached
 
     @property
     def memory(self) -> float:
@@ -75,24 +78,29 @@ class RaceMemory:
     def reset(self, t0: float, until: float) -> None:
         self.probes.reset(t0, until)
         self._count = 0
-        self._landed = None
+        self._landed, self._forgotten = None, -math.inf
         self._share()
 
     def landed(self, t: float) -> None:
-        """A member's step landed on a time event at ``t``: the group forgets once every
-        continuous member has reached ``t``. The members reach an event one by one, and the
-        last may come long after the first (on the ship plant the damage model stood at its
-        event 135 s before the hydraulic network); forgetting at the first landing threw
-        away what the probes measured of the dynamics the others still had to cross, and
-        restarted the probing each time (a probe never crosses an event, so none measures
-        past it before every member is there)."""
+        """A member's step landed on an event at ``t`` (a time event, a discrete model's next
+        event, a cut left by another's event): the group forgets once every continuous member
+        has reached ``t``. The members reach an event one by one, and the last may come long
+        after the first (on the ship plant the chiller stood at the hit at 200 s while the
+        network was at 64 s); forgetting at the first landing threw away what the probes
+        measured of the dynamics the others still had to cross, and restarted the probing at
+        each landing (a probe never crosses an event, so none measures past it before every
+        member is there). The members already past it step with no memory meanwhile
+        (:meth:`_share`). Landings not yet reached by all are kept as their earliest."""
+        if t <= self._forgotten:
+            return  # the whole group was there already, and forgot
         self._landed = t if self._landed is None else min(self._landed, t)
         self._reached()
+        self._share()
 
     def _reached(self) -> None:
         if self._landed is not None and self.live \
                 and min(tr.t for tr in self.live) >= self._landed:
-            self._landed = None
+            self._forgotten, self._landed = self._landed, None
             self.forget()
 
     def forget(self) -> None:
@@ -102,8 +110,11 @@ class RaceMemory:
         self._share()
 
     def _share(self) -> None:
+        memory, event = self.probes.memory, self._landed
         for tr in self.live:
-            tr.policy.memory = self.probes.memory
+            # past an event the rest of the group has yet to reach: what was measured before it
+            # says nothing about the dynamics after it
+            tr.policy.memory = math.inf if event is not None and tr.t >= event else memory
 
     def _save(self, t: float) -> dict[int, Any]:
         """Every continuous member's state (each at its own time; ``t`` names the call)."""

@@ -114,8 +114,8 @@ def test_no_probe_runs_across_a_scheduled_event(races, examples, monkeypatch) ->
     spans: list[tuple[float, float]] = []
     probe = race_memory.ErrorMemory.probe
 
-    def spy(self, t, h, *args):
-        spans.append((t, t + self.steps * h))
+    def spy(self, t, h, *args):  # t: after the probe's first (predictor/corrector) step
+        spans.append((t - h, t + self.steps * h))
         probe(self, t, h, *args)
 
     monkeypatch.setattr(race_memory.ErrorMemory, "probe", spy)
@@ -128,8 +128,10 @@ def test_no_probe_runs_across_a_scheduled_event(races, examples, monkeypatch) ->
 
 
 # measured err/tol (calls) at tol 1e-4 / 1e-6: 0.64 (408) / 0.14 (924); 0.023 (311) / 0.10 (676)
-# with the tolerance shared over the whole run and every step of it. At 1e-3 still 0.065: the
-# PI control lags the settling (docs/concepts.md, "Multi-rate: an error memory")
+# with the tolerance shared over the whole run and every step of it. The lower bound is the
+# band's: at 1e-6 it was 0.39 while probes ran across the failure, and the memory they measured
+# there loosened the steps before it. At 1e-3 still 0.065: the PI control lags the settling
+# (docs/concepts.md, "Multi-rate: an error memory")
 @pytest.mark.parametrize("tol", [1e-4, 1e-6])
 def test_the_multirate_pump_delivers_its_tolerance(examples, tol) -> None:
     spec = cs.load_system(examples / "pump_failure.toml")
@@ -154,7 +156,7 @@ def test_the_multirate_pump_follows_the_settling_where_asked(examples) -> None:
                              MULTIRATE, reference=spec.reference)
         assert result.success, result.message
         ratios.append(result.error.max_scaled / 1e-4)
-    assert ratios[0] < 0.1 and 0.3 <= ratios[1] <= 10.0, ratios
+    assert ratios[1] >= 3.0 * ratios[0] and 0.3 <= ratios[1] <= 10.0, ratios
 
 
 def test_a_probe_reads_only_its_own_group(examples) -> None:
