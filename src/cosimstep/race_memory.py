@@ -52,8 +52,9 @@ class RaceMemory:
     ``memory`` is the measured memory [s] (``inf`` until :attr:`ErrorMemory.window` probes exist
     since the start, or since every continuous member reached the group's last event; a member
     already past an event the others have still to reach steps with ``inf`` meanwhile).
-    :meth:`accepted` is told of every accepted step of a member and probes when one is due. Groups that exchange nothing are probed apart: a
-    probe of one would otherwise call the other's sub-models, and each forgets at its own rate.
+    :meth:`accepted` is told of every accepted step of a member and probes when one is due.
+    Groups that exchange nothing are probed apart: a probe of one would otherwise call the
+    other's sub-models, and each forgets at its own rate.
     """
 
     def __init__(self, race: Multirate, members: list[int], every: int = PROBE_EVERY) -> None:
