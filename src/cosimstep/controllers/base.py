@@ -218,7 +218,8 @@ class StepPolicy:
         they aimed at. The quotient of the two running means (over :data:`TREND_WINDOW`)
         divides the target. Off by default: alone, it also reads the PI control's lag on a
         settling system as scatter and makes those runs more accurate still (21 suite cells
-        outside the band; docs/concepts.md).
+        outside the band; docs/concepts.md). The multi-rate master applies it, as
+        :attr:`trend`, only where its error memory probes saw the system settle.
     pi:
         Proportional–integral control (Gustafsson, the default): damps the step oscillation an
         I-controller shows on smooth problems.
