@@ -18,6 +18,17 @@ from collections.abc import Sequence
 import numpy as np
 
 
+SHORTEST = 64
+"""Ulps of ``t``: a step shorter than this many is too short to fit a polynomial over. Its
+nodes ``t + NODES · h`` round onto each other (a re-run piece of one ulp at t = 200 s once ended
+a run with a ZeroDivisionError), and its inputs are their value at ``t`` anyway."""
+
+
+def negligible(t: float) -> float:
+    """The length below which a step at ``t`` is too short for an input polynomial
+    (:data:`SHORTEST` ulps of ``t``)."""
+    return SHORTEST * math.ulp(t)
+
 def taylor_coefficients(times: Sequence[float], values: np.ndarray, t0: float,
                         order: int) -> np.ndarray:
     """Derivatives at ``t0`` of the polynomial through the given points.

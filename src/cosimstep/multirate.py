@@ -43,7 +43,7 @@ from cosimstep.controllers.base import StepPolicy
 from cosimstep.controllers.memory import NO_DECAY
 from cosimstep.errors import SubModelError
 from cosimstep.events import MAX_EVENTS, DiscreteEventModel, Event
-from cosimstep.extrapolation import evaluate, evaluate_small, taylor_coefficients
+from cosimstep.extrapolation import evaluate, evaluate_small, negligible, taylor_coefficients
 from cosimstep.kernel import Actor, Budget, Kernel
 from cosimstep.loops import EVENT_TOL, crossing
 from cosimstep.masters import Master, MasterOptions
@@ -366,7 +366,11 @@ class Multirate:
         model = self.system.models[k]
         tr = self.tracks[k]
         q = model.capabilities.max_input_derivative_order
-        if len(inputs[0]):
+        if len(inputs[0]) and h <= negligible(t):  # a step of a few ulps: inputs held
+            coef = np.zeros((4, len(inputs[0])))
+            coef[0] = inputs[0]
+            u = coef[0]
+        elif len(inputs[0]):
             coef = taylor_coefficients(list(t + NODES * h), inputs, t, 3)
             u = coef[0] if q > 0 else evaluate(coef, 0.5 * h)  # hold: the mid-step value
         else:
@@ -640,14 +644,14 @@ class Multirate:
         t, step_try, made = t0, h / pieces, 0
         gain = tr.gain if tr.gain is not None else INITIAL_GAIN
         model = self.system.models[k]
-        # a remainder this short is taken with the piece before it: at t = 200 s a remainder of
-        # 1e-9 of a 17 µs step is below one ulp, and a piece of one ulp has coinciding nodes
-        # (the ship plant once failed there with a ZeroDivisionError). A few dozen ulps, well
-        # below hmin: a rejected piece can still shrink below this and end at hmin
-        negligible = max(1e-9 * h, 64 * math.ulp(t_end))
+        # a remainder this short is taken with the piece before it: at t = 200 s, 1e-9 of a
+        # 17 µs step is below one ulp (a piece of one ulp once ended the ship plant). A few
+        # dozen ulps stay well below hmin: a rejected piece can still shrink past this and end
+        # at hmin instead of being stretched back for ever
+        shortest = max(1e-9 * h, negligible(t_end))
         while t < t_end:
             step = min(step_try, t_end - t)
-            if t_end - t - step < negligible:
+            if t_end - t - step < shortest:
                 step = t_end - t
             u = inputs if inputs is not None else self.inputs_over(k, t, step)[0]
             if inputs is None and step > tr.policy.hmin:

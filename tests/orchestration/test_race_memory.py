@@ -185,3 +185,17 @@ def test_a_probe_that_fails_is_not_tried_again_at_once(races, monkeypatch) -> No
     # a round, as when a failed probe left the schedule where it was (measured 20 in 97)
     assert 3 <= len(attempts) <= rounds / 3
     assert races[0].probes.measured == [] and races[0].memory == math.inf
+
+
+def test_a_step_of_one_ulp_holds_its_inputs(races) -> None:
+    # aligning a sub-model for a probe may leave a step of a few ulps (t = 227.6 s in one of
+    # the ship plant's Monte-Carlo runs): the four nodes of its input cubic coincide, and
+    # fitting it ended the run with a ZeroDivisionError
+    assert _run("two_mass_damped", 1e-3, until=1.0).success
+    race = races[0].race
+    k = 0
+    t = race.tracks[k].t
+    n = len(race.system.models[k].inputs)
+    inputs = np.tile(np.arange(1.0, n + 1.0), (4, 1))
+    y = race.run_step(k, t, math.ulp(t), inputs)
+    assert np.isfinite(y).all()
