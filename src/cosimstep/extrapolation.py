@@ -17,7 +17,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-
 SHORTEST = 64
 """Ulps of ``t``: a step shorter than this many is too short to fit a polynomial over. Its
 nodes ``t + NODES · h`` round onto each other (a re-run piece of one ulp at t = 200 s once ended
