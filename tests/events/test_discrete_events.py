@@ -150,10 +150,14 @@ def test_multirate_locates_a_state_event_on_the_trajectories(resync, tol):
 
 
 def test_multirate_partial_resync_leaves_the_source_alone():
-    calls = {mode: cs.simulate(_monitored(0.5, 0.2), 2.0, cs.make_controller("pc", None, 1e-6),
-                               cs.MasterOptions("multirate", 2, resync=mode)).calls
-             for mode in ("partial", "complete")}
-    # x (watched, not reached by the alarm) goes back only under complete (measured 24 / 52)
+    models = {mode: cs.simulate(_monitored(0.5, 0.2), 2.0, cs.make_controller("pc", None, 1e-6),
+                                cs.MasterOptions("multirate", 2, resync=mode)).models
+              for mode in ("partial", "complete")}
+    # the sub-models' own steps: the error memory's probes step every continuous member of the
+    # group, and more often when more of them went back (z: 14 / 29 probe calls)
+    calls = {mode: {name: m.calls - m.probes for name, m in stats.items()}
+             for mode, stats in models.items()}
+    # x (watched, not reached by the alarm) goes back only under complete (measured 20 / 41)
     assert calls["partial"]["x"] < calls["complete"]["x"]
     assert calls["partial"]["z"] == calls["complete"]["z"]
 
