@@ -28,6 +28,7 @@ def negligible(t: float) -> float:
     (:data:`SHORTEST` ulps of ``t``)."""
     return SHORTEST * math.ulp(t)
 
+
 def taylor_coefficients(times: Sequence[float], values: np.ndarray, t0: float,
                         order: int) -> np.ndarray:
     """Derivatives at ``t0`` of the polynomial through the given points.

@@ -13,9 +13,10 @@ newest point. So the probe first brings them to the time ``t*`` of the one farth
 every other sub-model is restored to its latest saved state at or before ``t*`` and stepped to
 ``t*`` on its partners' stored trajectories (one call each) — then runs the coupled system on
 synchronously, Jacobi with inputs extrapolated from its own points (the run's degree), twice:
-from the state after a first step with extrapolated inputs and from the one after the same step
-with held inputs. The two differ by about a coupling error, in the direction coupling errors
-take; the decay of their scaled difference is the memory (read as in
+from the state after a first step with extrapolated inputs (predictor) and from the one after
+the same step with inputs interpolated through the predictor's end values (corrector), as
+``pc``'s probe starts. The two differ by about a coupling error, in the direction coupling
+errors take; the decay of their scaled difference is the memory (read as in
 :func:`cosimstep.controllers.memory._memory`: decay only where it has the shape of decay).
 Afterwards every sub-model is restored to the state it had before the probe, so the race goes
 on exactly where it was: the probe changes the steps only through the memory it measures.
