@@ -40,7 +40,6 @@ from typing import Any
 import numpy as np
 
 from cosimstep.controllers.base import StepPolicy
-from cosimstep.controllers.memory import NO_DECAY
 from cosimstep.errors import SubModelError
 from cosimstep.events import MAX_EVENTS, DiscreteEventModel, Event
 from cosimstep.extrapolation import evaluate, evaluate_small, negligible, taylor_coefficients
@@ -1260,29 +1259,6 @@ def _outside(h: float, measured_on: float) -> bool:
         and not measured_on / GAIN_SPAN <= h <= measured_on * GAIN_SPAN
 
 
-class _TrackPolicy(StepPolicy):
-    """A sub-model's step policy: :attr:`~StepPolicy.trend` and :attr:`~StepPolicy.unbiased`
-    act only while the track's error memory is measured, and shorter than half the run.
-
-    Both options are for a system that settles: its error coefficient falls steadily and the
-    PI control lags behind it. A measured memory is the black-box evidence of settling — the
-    probe saw perturbations decay (log-convex, :mod:`~cosimstep.controllers.memory`). Where it
-    saw none (an undamped pendulum: a perturbation rotates, it does not fade) the falls of the
-    coefficient are swings of an oscillation, and following them is what the multi-rate
-    estimate cannot afford: asked for both options, its mixed pendulums reached 11-21 × tol at
-    tol 1e-3 … 1e-4 with the options always on (docs/concepts.md, "Multi-rate: a trend only
-    where the system settles"). The synchronous controllers follow the options as asked."""
-
-    def _settling(self) -> bool:
-        return self.memory < NO_DECAY * self._span
-
-    def _drifting(self) -> bool:
-        return self._settling() and super()._drifting()
-
-    def _aim(self) -> float:
-        return super()._aim() if self._settling() else self.target
-
-
 def _copy_policy(policy: StepPolicy) -> StepPolicy:
     """Each sub-model's own copy of the controller's policy, with the global-error budget the
     multi-rate estimate's :data:`CALIBRATION` was measured with (``distribute``, cancellation
@@ -1292,10 +1268,12 @@ def _copy_policy(policy: StepPolicy) -> StepPolicy:
     duplicated state and the KPR problem 10-100× more accurate than asked (docs/concepts.md).
     The predictive control is not offered (its forecast followed every swing of the mixed
     pendulums: 27.8 × tol at 1e-3, 10.9 × at 1e-5); ``trend`` and ``unbiased`` are kept as
-    asked and act where the system settles (:class:`_TrackPolicy`)."""
+    asked, and act, as for every controller, where the group's error memory probes measured
+    the system settling (:meth:`StepPolicy._settling`; always on, the mixed pendulums reached
+    11-21 × tol)."""
     fields = {f.name: getattr(policy, f.name) for f in dataclasses.fields(policy)}
     fields.update(distribute=True, cancellation=3.0, target=0.5, predictive=False)
-    return _TrackPolicy(**fields)
+    return StepPolicy(**fields)
 
 
 __all__ = ["Multirate", "Track", "refusals"]

@@ -166,3 +166,31 @@ def test_distribute_shares_over_the_steps_whose_errors_add_up() -> None:
     assert policy._steps(0.1) == pytest.approx(21 + 1)
     error, y = np.array([1e-6]), np.array([0.0])
     assert policy.ratio(error, y, 0.1)[0] == pytest.approx(1e-6 / (1e-4 * 3.0 / 22))
+
+
+def test_a_step_longer_than_the_memory_spends_no_more_than_the_tolerance() -> None:
+    """A step's own error stands in full at its end, however fast errors fade afterwards: the
+    share ``h / memory`` of the budget stops at the whole of it once ``h`` passes the memory."""
+    from cosimstep.controllers.base import StepPolicy
+
+    policy = StepPolicy(tol=1e-4)
+    policy.start(0.0, 100.0)
+    policy.memory = 10.0
+    error, y = np.array([1e-5]), np.array([0.0])
+    whole = 1e-5 / (1e-4 * policy.cancellation)
+    assert policy.ratio(error, y, 5.0)[0] == pytest.approx(2.0 * whole)
+    assert policy.ratio(error, y, 10.0)[0] == pytest.approx(whole)
+    assert policy.ratio(error, y, 50.0)[0] == pytest.approx(whole)
+
+
+# The pump example's own step control (trend and unbiased aim), failure seed 4 at tol 1e-5
+# under Gauss-Seidel: 21 x tol when a step of 165 s under a memory of 25 s could spend 6.5
+# times the tolerance in its own error; 2.5 x with the share capped at the whole
+def test_the_pump_s_long_steps_keep_the_tolerance() -> None:
+    spec = cs.load_system("examples/pump_failure.toml", overrides={
+        "parameters": {"health.seed": 4, "fail_seed": 4.0}})
+    options = {k: v for k, v in spec.controller.items() if k not in ("name", "tol")}
+    run = cs.simulate(spec.system, spec.until, cs.make_controller("pc", None, 1e-5, **options),
+                      spec.master, reference=spec.reference)
+    assert run.success
+    assert 0.1 <= run.error.max_scaled / 1e-5 <= 10.0, run.error.max_scaled / 1e-5

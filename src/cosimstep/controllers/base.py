@@ -18,6 +18,7 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
+from cosimstep.controllers.memory import NO_DECAY
 from cosimstep.errors import StepSizeError, is_number
 
 
@@ -129,6 +130,10 @@ TREND_SD = 0.100
 when ``log c`` only scatters at random (no trend at all), for :data:`SMOOTHING` = 2/3
 (simulated over 200,000 steps: 0.1003; tests/controllers/test_step_control_statistics.py)."""
 
+BISECTIONS = 40
+"""Halvings of the interval in ``log g`` when the trend's step is solved for: ``log 25 / 2^40``,
+far below any step change that matters."""
+
 SIGNIFICANT = 2.0
 """A trend is followed when it is at least this many of its standard deviations (a two-sigma
 test: white scatter passes it about one step in twenty)."""
@@ -141,6 +146,27 @@ def _smooth(level: float, trend: float, x: float) -> tuple[tuple[float, float], 
     level += trend + (1.0 - SMOOTHING**2) * miss
     trend += (1.0 - SMOOTHING) ** 2 * miss
     return (level, trend), miss
+
+
+def _smooth_in_time(timed: tuple[float, float, float], x: float, last: float | None,
+                    mid: float) -> tuple[float, float, float]:
+    """:func:`_smooth` for values unevenly spaced in time: ``timed`` is the level of ``log c``
+    and its slope per unit time at time ``mid0``; ``x`` is measured at ``mid``. The gains are
+    Brown's (:data:`SMOOTHING`), the slope's miss taken per unit of the spacing. As in the
+    per-step forecast (:attr:`StepPolicy.trend`) the value smoothed is no lower than the last
+    coefficient carried along the slope: a coefficient can vanish by coincidence, and a step
+    sized on that moment is too long for the next (carried along the slope, not held, so that
+    a steady fall is followed without lag)."""
+    level, slope, mid0 = timed
+    gap = mid - mid0
+    if not gap > 0.0:  # no time between them (cannot happen for accepted steps): keep it
+        return timed
+    expected = level + slope * gap
+    if last is not None:
+        x = max(x, last + slope * gap)
+    miss = x - expected
+    return (expected + (1.0 - SMOOTHING**2) * miss,
+            slope + (1.0 - SMOOTHING) ** 2 * miss / gap, mid)
 
 
 def _wrong_types(policy: Any) -> list[str]:
@@ -187,28 +213,25 @@ class StepPolicy:
         tolerance). A forecast with a trend follows a steady drift without offset. Off by
         default (docs/concepts.md, "Step control that follows a settling system").
     trend:
-        Follow a drift of the error coefficient where the estimates show one: the forecast of
-        :attr:`predictive` is kept up to date on every accepted step, and its step is taken
-        when its trend is significant (more than :data:`SIGNIFICANT` standard deviations,
-        judged by the scatter of the misses over :data:`TREND_WINDOW`); otherwise the PI
-        control decides. A settling system (a transient decaying, a pump run down) shows a
-        steady trend that the PI control lags behind; estimates that only scatter show none,
-        and there the PI control's damping is kept. The step is sized on a forecast of the
-        larger of the last two coefficients (the test judges them as measured): one measured
-        on a single step can vanish by coincidence (the leading
-        term of a coupling error, a derivative of an oscillating signal, passes through zero),
-        and a step sized for that moment is too long for the next — followed, such troughs
-        took steps at 7× their share on a stiff oscillator. On a steady fall the larger of two
-        lags one step, so the ratio settles at ``e^(−fall)`` of the target (0.82 for 18 % per
-        step). Meant with :attr:`unbiased`. Off by default: measured on the suite with both
-        (docs/concepts.md, "A trend only where the estimates show one"), 14 of the 65 ``pc``
-        cells are outside err/tol [0.1, 10] against 17 with the PI control, none above 10
-        (the largest 6.5 against 7.3), and the pump-failure example at 0.026–0.21 × tol
-        against 0.006–0.13 (since an event starts the step control again: before, 0.15–0.34
-        against 0.026–0.275); not yet measured on the rest of the benchmarks as the default.
-        The multi-rate master follows it only where its error memory probes measured a
-        memory below half the run (evidence of settling; always on, the mixed pendulums
-        reached 11–21 × tol there).
+        Follow a drift of the error coefficient where the estimates show one: the coefficients
+        are forecast on every accepted step, and the forecast's step is taken when the trend
+        of the measured ones is significant (more than :data:`SIGNIFICANT` standard
+        deviations, judged by the scatter of their misses over :data:`TREND_WINDOW`);
+        otherwise the PI control decides. A settling system (a transient decaying, a pump run
+        down) shows a steady trend that the PI control lags behind; estimates that only
+        scatter show none, and there the PI control's damping is kept. The step is sized on
+        a forecast *in time* (:meth:`_timed_step`): a settling system's modes decay like
+        ``e^(−λt)``, so the fall per step grows with the step, and a forecast per step stayed
+        behind it. What is forecast is no lower than the last coefficient carried along the
+        forecast's slope: one measured on a single step can vanish by coincidence (the
+        leading term of a coupling error, a derivative of an oscillating signal, passes
+        through zero), and a step sized for that moment is too long for the next — followed,
+        such troughs took steps at 7× their share on a stiff oscillator. Meant with
+        :attr:`unbiased`. Off by default (measured on the suite and the pump-failure example
+        in docs/concepts.md, "A trend only where the estimates show one" and "A trend
+        forecast in time"). The multi-rate master follows it only where its error memory
+        probes measured a memory below half the run (evidence of settling; always on, the
+        mixed pendulums reached 11–21 × tol there).
     unbiased:
         Aim the step control so that the *arithmetic* mean of the accepted ratios is the
         target. The controls settle the logarithm of the ratio, i.e. its geometric mean, at
@@ -235,7 +258,10 @@ class StepPolicy:
         ``tol`` bounds each step's local error, and the global error grows with the step count.
         The share is taken over the run's length, or over its *error memory* where a
         controller measured one (``memory`` [s], :mod:`~cosimstep.controllers.memory`): an
-        error that fades within ``memory`` adds up over that long, not over the run.
+        error that fades within ``memory`` adds up over that long, not over the run. A step
+        longer than the memory spends the whole budget, not more: its own error stands in
+        full at its end, however fast it fades afterwards (uncapped, a step of 165 s under a
+        memory of 25 s could make 6.5 times the tolerance, and did).
     cancellation:
         With ``global_error``: the sum of the local error estimates may reach
         ``cancellation × tol`` before a step is rejected. The control aims at ``target`` of
@@ -290,6 +316,7 @@ class StepPolicy:
         self.memory = math.inf  # the measured error memory [s], set by the controller
         self._previous = self.target
         self._forecast: tuple[float, float, float] | None = None  # level, trend of log c; k
+        self._timed = (0.0, 0.0, 0.0)  # level of log c, its slope per second, at time (trend)
         self._scatter: float | None = None  # mean square miss of the forecast (TREND_WINDOW)
         self._misses = 0  # misses since the forecast started
         self._last_c: float | None = None  # log c of the last accepted step
@@ -326,9 +353,12 @@ class StepPolicy:
         allowed = self.scale(y)
         if self.global_error:
             # an error is carried for the rest of the run, or for the measured error memory
-            allowed = allowed * (self.cancellation * h / min(self._span, self.memory))
+            window = min(self._span, self.memory)
             if self.distribute:
-                allowed = allowed * min(self._span, self.memory) / (h * self._steps(h))
+                allowed = allowed * (self.cancellation * h / window) * window \
+                    / (h * self._steps(h))
+            else:
+                allowed = allowed * (self.cancellation * min(h, window) / window)
         if self.floor > 0.0:  # the sub-models' noise is no step's error
             r = np.maximum(np.abs(error) - self.floor * self.scale(y), 0.0) / allowed
         else:
@@ -381,34 +411,81 @@ class StepPolicy:
         return min(h * min(max(factor, self.shrink), self.grow), self.hmax)
 
     def _forecast_step(self, h: float, r: float, k: float, aim: float) -> float:
-        """The step whose forecast error ratio is ``aim`` (:attr:`predictive`).
+        """The step whose forecast error ratio is ``aim`` (:attr:`predictive`, :attr:`trend`).
 
-        Two forecasts of ``log c``: one of the coefficients as measured, whose trend and misses
-        decide whether a drift is shown (:meth:`_drifting`, calibrated on those), and, with
-        :attr:`trend`, one of the larger of the last two coefficients, which sizes the step.
+        Two forecasts of ``log c``: one of the coefficients as measured, per step, whose trend
+        and misses decide whether a drift is shown (:meth:`_drifting`, calibrated on those) and
+        which sizes the :attr:`predictive` step; and, with :attr:`trend`, one in time
+        (:meth:`_timed_step`), which sizes the trend's step.
         """
         x = math.log(r) - k * math.log(h)  # log c, the error coefficient of this step
         last, self._last_c = self._last_c, x
+        mid = self._elapsed + 0.5 * h  # the step's middle, in accepted time
         if self._forecast is None or self._forecast[2] != k:
             # a new error model (first step, order change, rejection): no trend yet
             self._raw, self._forecast = (x, 0.0), (x, 0.0, k)
+            self._timed = (x, 0.0, mid)
             self._scatter, self._misses = None, 0
         else:
             self._raw, miss = _smooth(*self._raw, x)
             self._scatter = miss * miss if self._scatter is None else \
                 TREND_WINDOW * self._scatter + (1.0 - TREND_WINDOW) * miss * miss
             self._misses += 1
-            if self.trend and not self.predictive and last is not None:
-                x = max(x, last)  # a coefficient can vanish by coincidence (see `trend`)
-            self._forecast = (*_smooth(*self._forecast[:2], x)[0], k)
-        level, trend, _ = self._forecast
-        return math.exp((math.log(aim) - level - trend) / k)
+            if self.predictive:
+                self._forecast = (*_smooth(*self._forecast[:2], x)[0], k)
+            else:
+                self._timed = _smooth_in_time(self._timed, x, last, mid)
+        if self.predictive:
+            level, trend, _ = self._forecast
+            return math.exp((math.log(aim) - level - trend) / k)
+        return self._timed_step(h, k, aim)
+
+    def _timed_step(self, h: float, k: float, aim: float) -> float:
+        """The next step ``g`` whose forecast ratio is ``aim`` (:attr:`trend`): ``log c`` at
+        its middle, ``(h + g)/2`` after this step's, from the level and slope per unit time of
+        :func:`_smooth_in_time`, plus ``k log g``.
+
+        Why in time: a settling system's error coefficient falls with its modes, like
+        ``e^(−λt)``, so its fall per *step* grows with the step. Forecast per step, the trend
+        lagged a fall that grew as the steps did: the multi-rate pump example settled with its
+        ratios at 1–3 % of the aim (0.063 × tol at tol 1e-3). The forecast ratio
+        ``k log g + slope·g/2`` rises with ``g`` only up to ``g = 2k/|slope|`` on a fall; past
+        that the forecast says any longer step is cheaper, which no error model supports, so
+        the step stops there. Solved by bisection in ``log g`` within the step's limits
+        ``[shrink·h, grow·h]``."""
+        level, slope, _ = self._timed
+        goal = math.log(aim) - level - 0.5 * slope * h
+
+        def excess(u: float) -> float:  # forecast log ratio minus the aim's, at g = e^u
+            return k * u + 0.5 * slope * math.exp(u) - goal
+
+        lo, hi = math.log(h * self.shrink), math.log(h * self.grow)
+        if slope < 0.0:
+            hi = min(hi, math.log(2.0 * k / -slope))
+        if hi <= lo or excess(lo) >= 0.0:
+            return math.exp(lo)
+        if excess(hi) <= 0.0:
+            return math.exp(hi)
+        for _ in range(BISECTIONS):
+            middle = 0.5 * (lo + hi)
+            if excess(middle) > 0.0:
+                hi = middle
+            else:
+                lo = middle
+        return math.exp(lo)
+
+    def _settling(self) -> bool:
+        """Whether the error memory probes measured the system settling: a memory below
+        :data:`~cosimstep.controllers.memory.NO_DECAY` of the run (:attr:`trend`,
+        :attr:`unbiased`)."""
+        return self.memory < NO_DECAY * self._span
 
     def _drifting(self) -> bool:
         """Whether the measured coefficients' trend is significant against the scatter of
-        their misses (:attr:`trend`); three misses at least, so that there is a scatter to
-        judge by."""
-        if self._forecast is None or self._scatter is None or self._misses < 3:
+        their misses (:attr:`trend`), where the system settles; three misses at least, so
+        that there is a scatter to judge by."""
+        if self._forecast is None or self._scatter is None or self._misses < 3 \
+                or not self._settling():
             return False
         return abs(self._raw[1]) > SIGNIFICANT * TREND_SD * math.sqrt(self._scatter)
 
@@ -424,7 +501,7 @@ class StepPolicy:
     def _aim(self) -> float:
         """The ratio the step control aims at: the target, divided by the measured quotient of
         the arithmetic and the geometric mean of the ratios (:attr:`unbiased`; at least 1)."""
-        if not self.unbiased or self._means is None:
+        if not self.unbiased or self._means is None or not self._settling():
             return self.target
         mean, log_mean = self._means
         return self.target / max(mean / math.exp(log_mean), 1.0)
