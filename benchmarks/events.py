@@ -198,9 +198,10 @@ def main() -> None:
         "",
         "`examples/pump_failure.toml`, 1200 s; the Weibull failure (seed 11) stops the pump at "
         "the same instant as in the reference. Step control: *example* = the example's "
-        "`[controller]` (`trend` and `unbiased`: the forecast followed where the estimates "
-        "show a drift, the aim corrected for their scatter; the multi-rate master follows them "
-        "only where its error memory probes saw the system settle), *PI* = the default.",
+        "`[controller]` (`trend` and `unbiased`, acting only where the error memory probes "
+        "saw the system settle: a forecast of the error coefficient in time, followed where "
+        "the estimates show a drift, and the aim corrected for their scatter), *PI* = the "
+        "default.",
         "",
         "| master | step control | tol | status | failure at [s] | calls | error | err/tol |",
         "|---|---|---|---|---|---|---|---|",

@@ -185,7 +185,7 @@ def test_a_step_longer_than_the_memory_spends_no_more_than_the_tolerance() -> No
 
 # The pump example's own step control (trend and unbiased aim), failure seed 4 at tol 1e-5
 # under Gauss-Seidel: 21 x tol when a step of 165 s under a memory of 25 s could spend 6.5
-# times the tolerance in its own error; 2.5 x with the share capped at the whole
+# times the tolerance in its own error; 3.3 x with the share capped at the whole
 def test_the_pump_s_long_steps_keep_the_tolerance() -> None:
     spec = cs.load_system("examples/pump_failure.toml", overrides={
         "parameters": {"health.seed": 4, "fail_seed": 4.0}})

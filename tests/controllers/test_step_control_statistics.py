@@ -141,3 +141,38 @@ def test_a_trend_is_followed_only_where_the_system_settles(multirate: bool, rate
             assert max(pi[-5:]) < 0.75 * asked.target
         else:
             assert followed == 0 and np.array_equal(ratios, pi)
+
+
+def test_a_new_share_of_the_budget_is_no_fall_to_follow() -> None:
+    """A memory measured anew changes every later ratio's share of the budget at once (the
+    ratio is the error over its share), which the forecast would read as a fall of the error:
+    it starts again, and the PI control decides until it has three misses."""
+    policy = _settling(**BOTH)
+    _closed_loop(policy, 0.0, rate=5.0, steps=30)
+    assert policy._drifting()
+    policy.memory = 8.0  # a probe found the memory five times shorter
+    policy.next_step(0.01, 0.02, 4, True)
+    assert not policy._drifting()
+
+
+# the suite's boundary layer under the multi-rate master at tol 1e-6 with both options: 17 × tol
+# when a memory of 0.18 s measured after one of 0.91 s (a fivefold share) was followed as a
+# steep fall of the error, 0.35 × with the forecast started again
+def test_the_boundary_layer_keeps_the_tolerance_with_both_options() -> None:
+    from cosimstep import suite
+
+    problem = suite.get("boundary_layer")
+    system, reference = problem.build()
+    run = cs.simulate(system, problem.until, cs.make_controller("pc", None, 1e-6, **BOTH),
+                      cs.MasterOptions("multirate", 2), reference=reference)
+    assert run.success
+    assert 0.1 <= run.error.max_scaled / 1e-6 <= 10.0, run.error.max_scaled / 1e-6
+
+
+@pytest.mark.parametrize(("name", "options"), [("doubling", {"trend": True}),
+                                               ("defect", {"unbiased": True}),
+                                               ("pc", {"trend": True, "probe_every": 0})])
+def test_the_options_are_refused_where_no_memory_is_measured(name: str, options: dict) -> None:
+    """Without an error memory the options would silently do nothing."""
+    with pytest.raises(ValueError, match="measures no error memory"):
+        cs.make_controller(name, None, 1e-4, **options)

@@ -149,24 +149,24 @@ def _smooth(level: float, trend: float, x: float) -> tuple[tuple[float, float], 
 
 
 def _smooth_in_time(timed: tuple[float, float, float], x: float, last: float | None,
-                    mid: float) -> tuple[float, float, float]:
+                    h: float) -> tuple[float, float, float]:
     """:func:`_smooth` for values unevenly spaced in time: ``timed`` is the level of ``log c``
-    and its slope per unit time at time ``mid0``; ``x`` is measured at ``mid``. The gains are
-    Brown's (:data:`SMOOTHING`), the slope's miss taken per unit of the spacing. As in the
-    per-step forecast (:attr:`StepPolicy.trend`) the value smoothed is no lower than the last
-    coefficient carried along the slope: a coefficient can vanish by coincidence, and a step
-    sized on that moment is too long for the next (carried along the slope, not held, so that
-    a steady fall is followed without lag)."""
-    level, slope, mid0 = timed
-    gap = mid - mid0
-    if not gap > 0.0:  # no time between them (cannot happen for accepted steps): keep it
-        return timed
+    at the middle of the last step, its slope per unit time, and that step's length; ``x`` is
+    measured on the next step, of length ``h``, whose middle is ``(h_last + h)/2`` later (taken
+    from the lengths, not as a difference of absolute times, which loses the spacing of short
+    steps late in a long run). The gains are Brown's (:data:`SMOOTHING`), the slope's miss
+    taken per unit of the spacing. The value smoothed is no lower than the last coefficient
+    carried along the slope: a coefficient can vanish by coincidence, and a step sized on that
+    moment is too long for the next (carried along the slope, not held, so that a steady fall
+    is followed without lag)."""
+    level, slope, h_last = timed
+    gap = 0.5 * (h_last + h)
     expected = level + slope * gap
     if last is not None:
         x = max(x, last + slope * gap)
     miss = x - expected
     return (expected + (1.0 - SMOOTHING**2) * miss,
-            slope + (1.0 - SMOOTHING) ** 2 * miss / gap, mid)
+            slope + (1.0 - SMOOTHING) ** 2 * miss / gap, h)
 
 
 def _wrong_types(policy: Any) -> list[str]:
@@ -210,8 +210,10 @@ class StepPolicy:
         control treats that drift as a disturbance and settles below the target (at 0.51 of
         it for a fall of 18 % per step; measured on the pump-failure example: ratios of
         0.03–0.05 against 0.1 for the whole settle, so ``pc`` spent 6–11 % of its
-        tolerance). A forecast with a trend follows a steady drift without offset. Off by
-        default (docs/concepts.md, "Step control that follows a settling system").
+        tolerance). A forecast with a trend follows a steady drift without offset. It starts
+        again, as after a rejection, when the error memory is measured anew (a new share of
+        the budget; see :attr:`trend`). Off by default (docs/concepts.md, "Step control that
+        follows a settling system").
     trend:
         Follow a drift of the error coefficient where the estimates show one: the coefficients
         are forecast on every accepted step, and the forecast's step is taken when the trend
@@ -227,11 +229,17 @@ class StepPolicy:
         leading term of a coupling error, a derivative of an oscillating signal, passes
         through zero), and a step sized for that moment is too long for the next — followed,
         such troughs took steps at 7× their share on a stiff oscillator. Meant with
-        :attr:`unbiased`. Off by default (measured on the suite and the pump-failure example
-        in docs/concepts.md, "A trend only where the estimates show one" and "A trend
-        forecast in time"). The multi-rate master follows it only where its error memory
-        probes measured a memory below half the run (evidence of settling; always on, the
-        mixed pendulums reached 11–21 × tol there).
+        :attr:`unbiased`. Both act only where the error memory probes measured a memory below
+        half the run (:meth:`_settling`), the black-box evidence that the system settles, so
+        only under a controller that probes (``pc``, the multi-rate master; others refuse the
+        options): on a swing the slope per second carried over a long step promises a fall
+        that the motion takes back (followed everywhere, the mixed and the triple pendulum
+        reached 15–17 × tol under ``pc``, 11–21 × under the multi-rate master). A memory
+        measured anew starts the forecast again: the ratio is the error over its share of the
+        budget, and a new share is no fall of the error. Off by default (measured on the
+        suite and the pump-failure example in docs/concepts.md, "A trend only where the
+        estimates show one" and "A trend forecast in time, and a step longer than the
+        memory").
     unbiased:
         Aim the step control so that the *arithmetic* mean of the accepted ratios is the
         target. The controls settle the logarithm of the ratio, i.e. its geometric mean, at
@@ -241,8 +249,8 @@ class StepPolicy:
         they aimed at. The quotient of the two running means (over :data:`TREND_WINDOW`)
         divides the target. Off by default: alone, it also reads the PI control's lag on a
         settling system as scatter and makes those runs more accurate still (21 suite cells
-        outside the band; docs/concepts.md). The multi-rate master applies it, as
-        :attr:`trend`, only where its error memory probes saw the system settle.
+        outside the band; docs/concepts.md). It acts, as :attr:`trend`, only where the error
+        memory probes saw the system settle, and its means start again with a new memory.
     pi:
         Proportional–integral control (Gustafsson, the default): damps the step oscillation an
         I-controller shows on smooth problems.
@@ -315,8 +323,11 @@ class StepPolicy:
         self._span = 1.0
         self.memory = math.inf  # the measured error memory [s], set by the controller
         self._previous = self.target
-        self._forecast: tuple[float, float, float] | None = None  # level, trend of log c; k
-        self._timed = (0.0, 0.0, 0.0)  # level of log c, its slope per second, at time (trend)
+        # level, trend of log c per step, and k (predictive); with trend only its k and the
+        # mark that the forecast has started: the trend's own forecast is in time (_timed)
+        self._forecast: tuple[float, float, float] | None = None
+        self._timed = (0.0, 0.0, 0.0)  # level of log c, its slope per second, step (trend)
+        self._basis = math.inf  # the memory the forecasts' ratios were shared over
         self._scatter: float | None = None  # mean square miss of the forecast (TREND_WINDOW)
         self._misses = 0  # misses since the forecast started
         self._last_c: float | None = None  # log c of the last accepted step
@@ -334,6 +345,7 @@ class StepPolicy:
         self.memory = math.inf
         self._previous = self.target  # neutral: the first accepted step is not pushed
         self._forecast, self._scatter, self._misses, self._means = None, None, 0, None
+        self._basis = math.inf
         self._last_c = None
         self._count, self._elapsed, self._ends = 0, 0.0, []
         self._rejected, self.floor, self.noise_steps = None, 0.0, 0
@@ -420,11 +432,14 @@ class StepPolicy:
         """
         x = math.log(r) - k * math.log(h)  # log c, the error coefficient of this step
         last, self._last_c = self._last_c, x
-        mid = self._elapsed + 0.5 * h  # the step's middle, in accepted time
-        if self._forecast is None or self._forecast[2] != k:
-            # a new error model (first step, order change, rejection): no trend yet
+        if self._forecast is None or self._forecast[2] != k or self._basis != self.memory:
+            # a new error model (first step, order change, rejection), or a new share of the
+            # budget (a memory measured): no trend yet. The ratio is the error over its share,
+            # and a share that grows fivefold at once is no fall of the error to follow.
+            if self._basis != self.memory:  # the ratios' means were shared otherwise too
+                self._basis, self._means = self.memory, None
             self._raw, self._forecast = (x, 0.0), (x, 0.0, k)
-            self._timed = (x, 0.0, mid)
+            self._timed = (x, 0.0, h)
             self._scatter, self._misses = None, 0
         else:
             self._raw, miss = _smooth(*self._raw, x)
@@ -434,7 +449,7 @@ class StepPolicy:
             if self.predictive:
                 self._forecast = (*_smooth(*self._forecast[:2], x)[0], k)
             else:
-                self._timed = _smooth_in_time(self._timed, x, last, mid)
+                self._timed = _smooth_in_time(self._timed, x, last, h)
         if self.predictive:
             level, trend, _ = self._forecast
             return math.exp((math.log(aim) - level - trend) / k)
@@ -454,6 +469,8 @@ class StepPolicy:
         the step stops there. Solved by bisection in ``log g`` within the step's limits
         ``[shrink·h, grow·h]``."""
         level, slope, _ = self._timed
+        if not (math.isfinite(level) and math.isfinite(slope)):
+            return h  # nothing to forecast from (cannot arise from finite ratios)
         goal = math.log(aim) - level - 0.5 * slope * h
 
         def excess(u: float) -> float:  # forecast log ratio minus the aim's, at g = e^u

@@ -55,8 +55,16 @@ def _correct(ctx: StepContext, t: float, h: float, y: np.ndarray, q: int) -> np.
 class _PolicyController(Controller):
     needs_rollback = True
 
+    measures_memory = False  # whether it probes the error memory (``trend``, ``unbiased``)
+
     def __init__(self, tol: float = 1e-4, h0: float | None = None, **policy: Any) -> None:
         self.policy = StepPolicy(tol=float(tol), **policy)
+        if (self.policy.trend or self.policy.unbiased) and not self.measures_memory:
+            # they act only where a measured memory shows the system settling: silently
+            # nothing here (StepPolicy.trend)
+            raise ValueError(f"controller '{self.name}' measures no error memory, and `trend` "
+                             "and `unbiased` act only where one shows the system settling; "
+                             "use controller 'pc'")
         self.h0 = h0
         self.error_estimate: float | None = None  # the run's global error estimate (scaled)
         self._spent: np.ndarray | None = None
@@ -219,6 +227,7 @@ class PredictorCorrector(_PolicyController):
         # estimate is least reliable at the largest steps, gave a steadier error / tol
         # (docs/benchmarks.md).
         policy.setdefault("safety", 0.85)
+        self.measures_memory = probe_every != 0
         super().__init__(tol, h0, **policy)
         self.probe = ErrorMemory(every=probe_every)
 
