@@ -60,6 +60,26 @@ def test_a_stiff_partition_keeps_its_step_and_jacobian(method: str) -> None:
         assert np.max(np.abs(result.values - fresh.values)) < 1e-3  # rtol 1e-6 of |v| ~ 1e3
 
 
+def test_a_second_run_of_the_same_system_repeats_the_first() -> None:
+    """What the internal solver learnt belongs to its run: a second ``simulate`` of the same
+    system objects starts from nothing learnt, as the first did (it started from the first
+    run's last step size and Jacobian, and its numbers differed)."""
+    rhs = Counted()
+    system = System()
+    system.add("vdp", OdeSubModel(rhs, [Port("x", "1", 2.0), Port("v", "1", 0.0)],
+                                  inputs=[Port("w", "1", 0.0)],
+                                  solver=SolveIvp("Radau", rtol=1e-6, atol=1e-8)))
+    system.add("slow", OdeSubModel(lambda t, x, u, p: np.array([-0.1 * x[0] + 0.01 * u[0]]),
+                                   [Port("w", "1", 1.0)], inputs=[Port("x", "1", 2.0)]))
+    system.connect("vdp.x", "slow.x").connect("slow.w", "vdp.w")
+    first = simulate(system, 20.0, Fixed(1.0), MasterOptions("gauss-seidel", 2))
+    calls = rhs.calls
+    second = simulate(system, 20.0, Fixed(1.0), MasterOptions("gauss-seidel", 2))
+    assert first.success and second.success
+    assert rhs.calls == 2 * calls
+    assert np.array_equal(first.values, second.values)
+
+
 def test_each_sub_model_has_its_own_memory_and_the_options_reach_scipy() -> None:
     shared = SolveIvp("RK45", rtol=1e-6, atol=1e-8, first_step=1e-3, max_step=0.05)
     a = OdeSubModel(vdp, [Port("x", "1", 2.0), Port("v", "1", 0.0)],
