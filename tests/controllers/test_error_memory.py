@@ -88,10 +88,14 @@ def test_no_decay_seen_over_a_shorter_horizon_than_the_step_is_no_evidence() -> 
     assert [t for t, _, _ in probe.measured] == [0.2]  # decay seen is kept
 
 
-def _pump(tol: float, seed: int) -> cs.SimulationResult:
+def _pump(tol: float, seed: int, example: bool = False) -> cs.SimulationResult:
+    """The pump example with another failure seed; the default step control, or the
+    example's own ``[controller]`` options."""
     spec = cs.load_system("examples/pump_failure.toml", overrides={
         "parameters": {"health.seed": seed, "fail_seed": float(seed)}})
-    return cs.simulate(spec.system, spec.until, cs.make_controller("pc", None, tol),
+    options = {k: v for k, v in spec.controller.items() if k not in ("name", "tol")} \
+        if example else {}
+    return cs.simulate(spec.system, spec.until, cs.make_controller("pc", None, tol, **options),
                        spec.master, reference=spec.reference)
 
 
@@ -187,10 +191,6 @@ def test_a_step_longer_than_the_memory_spends_no_more_than_the_tolerance() -> No
 # under Gauss-Seidel: 21 x tol when a step of 165 s under a memory of 25 s could spend 6.5
 # times the tolerance in its own error; 3.3 x with the share capped at the whole
 def test_the_pump_s_long_steps_keep_the_tolerance() -> None:
-    spec = cs.load_system("examples/pump_failure.toml", overrides={
-        "parameters": {"health.seed": 4, "fail_seed": 4.0}})
-    options = {k: v for k, v in spec.controller.items() if k not in ("name", "tol")}
-    run = cs.simulate(spec.system, spec.until, cs.make_controller("pc", None, 1e-5, **options),
-                      spec.master, reference=spec.reference)
+    run = _pump(1e-5, 4, example=True)
     assert run.success
     assert 0.1 <= run.error.max_scaled / 1e-5 <= 10.0, run.error.max_scaled / 1e-5

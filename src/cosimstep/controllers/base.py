@@ -366,7 +366,8 @@ class StepPolicy:
         if self.global_error:
             # an error is carried for the rest of the run, or for the measured error memory
             window = min(self._span, self.memory)
-            if self.distribute:
+            if self.distribute:  # cancellation / N, bounded by the whole budget as N >= 1;
+                # written in the order it was measured in, so stored runs repeat to the bit
                 allowed = allowed * (self.cancellation * h / window) * window \
                     / (h * self._steps(h))
             else:
