@@ -393,7 +393,7 @@ class FixedLoop(_Loop):
         self.table = np.empty((rows, m))
         self.hs = np.empty(rows)
         self.lean: Any = None  # the master's lean step (_HeldKernel, _ExtrapolatingKernel)
-        self._block: tuple[int, float, list] | None = None  # the lean kernel's run under way
+        self._block: tuple[int, float, list, float] | None = None  # the lean run under way
         self._state: tuple[float, float, int, int] | None = None  # set by the first turn
         self._stored = 0  # points handed to the store so far
         self._shown = 0  # steps shown on the progress bar so far
@@ -504,40 +504,43 @@ class FixedLoop(_Loop):
         """
         cap = min(due - n, self.table.shape[0] - 1 - n)
         starts: list[float] = []
-        ends: list[tuple[float, float, float]] = []
-        while len(starts) < cap:
+        append = starts.append
+        # the loop's own expressions, their constant factors taken out (the same values)
+        eps, close, size = 1e-6 * h, 1e-9 * h, abs(h)
+        for _ in range(cap):
             gap = landing - t
-            if h >= gap * (1 - 1e-9) or gap - h < 1e-6 * h:
+            if h >= gap * (1 - 1e-9) or gap - h < eps:
                 break  # this step lands: the step-by-step loop takes it
             s = clock + h
-            c = carry + (((clock - s) + h) if abs(clock) >= abs(h) else ((h - s) + clock))
+            c = carry + (((clock - s) + h) if abs(clock) >= size else ((h - s) + clock))
             value = s + c
-            if abs(value - landing) <= 1e-9 * h:
+            if abs(value - landing) <= close:
                 break  # ends on the landing after all: likewise
-            starts.append(t)
-            ends.append((s, c, value))
+            append(t)
             clock, carry, t = s, c, value
         if not starts:
             return None
         table = self.table
-        self._block = (n, h, ends)
+        self._block = (n, h, starts, t)
         try:
             lean.steps(starts, h, n, table.reshape(-1), table.ctypes.data)
         finally:
             self._catch_up()
-        return self.t, self.n, *ends[-1][:2]
+        return self.t, self.n, clock, carry
 
     def _catch_up(self) -> None:
         """Record the steps the lean kernel completed of the run it was given (all of them,
-        or those before a failure; also when a hung call was abandoned mid-run)."""
+        or those before a failure; also when a hung call was abandoned mid-run): each step
+        ends where the next starts, the last at ``end``."""
         if self._block is None or self.lean is None:
             return
-        n, h, ends = self._block
+        n, h, starts, end = self._block
         done = self.lean.done
         if done:
-            self.times[n + 1:n + done + 1] = [e[2] for e in ends[:done]]
+            self.times[n + 1:n + done] = starts[1:done]
+            self.times[n + done] = starts[done] if done < len(starts) else end
             self.hs[n:n + done] = h
-            self.n, self.t = n + done, ends[done - 1][2]
+            self.n, self.t = n + done, float(self.times[n + done])
         self._block = None
 
     def snapshot(self) -> dict[str, Any]:

@@ -13,10 +13,11 @@ is what rejecting and re-running a step needs.
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,6 +43,9 @@ DEFAULT_CALL_TIMEOUT = 60.0
 (the slowest call in the benchmarks takes about 0.1 s), short enough that a hung FMU does not
 hold a batch job until its wall-time limit. Watching costs two stores per call (measured in
 docs/benchmarks.md, fmu-overhead)."""
+
+TIMED_EVERY = 4
+"""The held kernel times its calls on one step in this many (see :class:`_LeanKernel`)."""
 
 
 @dataclass(frozen=True)
@@ -150,15 +154,18 @@ class _Watchdog:
     """Runs a whole job (a run's kernel) in one daemon worker thread and watches its calls.
 
     Handing every call to a worker thread and waiting for it costs two thread switches per
-    call, more than a small FMU's step. Here the worker runs the whole job and stamps the start
-    and end of each sub-model call (:meth:`call`, or the same two stores inlined in the lean
-    kernels' C paths); the calling thread sleeps until the running call's deadline and ends the
-    run when that call is still the one running. A timed-out call is abandoned: its thread is a
-    daemon, and if the call ever returns, the worker stops there (:class:`_Abandoned`) without
-    touching anything else.
+    call, more than a small FMU's step. Here the worker runs the whole job and marks each
+    sub-model call it makes with a token (:meth:`call`, or the same stores inlined in the lean
+    kernels): :attr:`running` is the call's token while it runs, 0 between calls. The calling
+    thread looks at least every quarter of the limit, and ends the run when one token has stood
+    for the whole limit: that call has run at least that long, and the run ends within 1.25
+    time-outs of the call's start. A token costs no clock read (the lean kernels time only a
+    sample of their calls, see :class:`_LeanKernel`). A timed-out call is abandoned: its thread
+    is a daemon, and if the call ever returns, the worker stops there (:class:`_Abandoned`)
+    without touching anything else.
 
-    No lock: a call's end is "``started = 0``, then read ``abandoned``", the watchdog's decision
-    "``abandoned = True``, then read ``started``" (both single stores and loads under the GIL,
+    No lock: a call's end is "``running = 0``, then read ``abandoned``", the watchdog's decision
+    "``abandoned = True``, then read ``running``" (both single stores and loads under the GIL,
     so seen in one order by both threads). If the watchdog still sees the call running after
     raising the flag, the worker will read the flag when (if) the call returns and stop; if the
     call ended in between, the flag is lowered again and the worker goes on — unless it read the
@@ -169,30 +176,41 @@ class _Watchdog:
 
     def __init__(self, timeout: float) -> None:
         self.timeout = timeout
-        self.started = 0.0  # perf_counter() when the running call began; 0.0: none running
+        self.running = 0  # the token of the call under way; 0: none
+        self.tick = 0  # the last token handed out (tokens are never reused within a run)
         self.where: tuple[int, float, float | None] = (-1, math.nan, None)  # (k, t, h)
+        # where a lean kernel's run of steps places a token (k, t, h), instead of `where`
+        self.locate: Callable[[int], tuple[int, float, float | None]] | None = None
         self.abandoned = False
 
     def call(self, k: int, t: float, h: float | None, fn: Any, args: tuple) -> Any:
-        self.where = (k, t, h)
-        self.started = time.perf_counter()
+        self.where, self.locate = (k, t, h), None
+        self.tick += 1
+        self.running = self.tick
         try:
             return fn(*args)
         finally:
-            self.started = 0.0
+            self.running = 0
             if self.abandoned:
                 raise _Abandoned
 
-    def _give_up(self, started: float) -> bool:
-        """Abandon the call stamped ``started`` if it is still running (see the class)."""
+    def stamp(self, k: int, t: float, h: float | None) -> int:
+        """A call of model ``k`` starts (the lean kernels' single calls): its token."""
+        self.where, self.locate = (k, t, h), None
+        self.tick += 1
+        self.running = self.tick
+        return self.tick
+
+    def _give_up(self, token: int) -> bool:
+        """Abandon the call ``token`` if it is still running (see the class)."""
         self.abandoned = True
-        if self.started == started:
+        if self.running == token:
             return True
         self.abandoned = False
         return False
 
-    def _timeout(self, names: Sequence[str]) -> SubModelError:
-        k, t, h = self.where
+    def _timeout(self, names: Sequence[str], token: int) -> SubModelError:
+        k, t, h = self.where if self.locate is None else self.locate(token)
         msg = f"no answer within {self.timeout:g} s (call abandoned)"
         error = SubModelError(names[k], t, f"TimeoutError: {msg}", h)
         error.__cause__ = TimeoutError(msg)
@@ -215,23 +233,25 @@ class _Watchdog:
                 done.set()
 
         threading.Thread(target=work, daemon=True, name="cosimstep-run").start()
-        timeout, wait = self.timeout, self.timeout
+        timeout = self.timeout
+        quarter = wait = 0.25 * timeout
+        seen, since = 0, 0.0  # the token at the last look, and when it was first seen
         try:
             while not done.wait(wait):
-                started = self.started
-                if started and time.perf_counter() - started >= timeout \
-                        and self._give_up(started):
-                    raise self._timeout(names)
-                # the running call's deadline; between calls, a quarter of the limit
-                wait = max(started + timeout - time.perf_counter() if started
-                           else 0.25 * timeout, 1e-3)
+                token, now = self.running, time.perf_counter()
+                if token != seen:
+                    seen, since = token, now
+                elif token and now - since >= timeout and self._give_up(token):
+                    raise self._timeout(names, token)
+                # a quarter of the limit, or the deadline of the call seen if sooner
+                wait = max(min(quarter, since + timeout - now) if token else quarter, 1e-3)
         except KeyboardInterrupt:
             # stop at the next call's return; wait for it as long as a call may take
             self.abandoned = True
             done.wait(timeout)
             raise
         if not box:  # it stopped on the flag raised in the instant its call ended
-            raise self._timeout(names)
+            raise self._timeout(names, seen)
         ok, value = box[0]
         if not ok:
             raise value
@@ -261,7 +281,7 @@ class Master:
             self.sequence += [k for k in range(n) if k not in self.sequence]
         self._deriv_order = [m.capabilities.max_input_derivative_order for m in system.models]
         # a connection without gain, offset or unit change passes values on untouched
-        self._identity = [bool(np.all(a == 1.0) and np.all(b == 0.0))
+        self._identity = [bool((a == 1.0).all() and (b == 0.0).all())
                           for a, b in zip(system.a, system.b)]
         self._watch: _Watchdog | None = None  # set while a watched run is under way
         self._dy0: np.ndarray | None = None
@@ -621,11 +641,19 @@ def _iteration(system: CompiledSystem, options: MasterOptions) -> Iteration | No
 
 class _LeanKernel:
     """What the two lean kernels share: counts kept locally and added to the master's at the
-    end, failures named as :meth:`Master._guard` names them, and runs of steps."""
+    end, failures named as :meth:`Master._guard` names them, and runs of steps.
+
+    The held kernel times its sub-models' calls on one step in :data:`TIMED_EVERY` (the first
+    of every run of steps, then every fourth), not on every one: two clock reads per call were
+    a sixth of a cheap Python model's whole step. :meth:`sync` scales each model's sampled time
+    by its calls over its timed calls, so ``time_in_models`` is an estimate there — unbiased
+    for sub-models whose cost does not follow the step's number — and exact elsewhere.
+    """
 
     master: Master
     names: list[str]
     calls: list[int]
+    timed: list[int]  # calls timed (the sample :attr:`time` holds)
     time: list[float]
     done: int
 
@@ -642,26 +670,32 @@ class _LeanKernel:
             self.done = i + 1
 
     def sync(self) -> None:
-        """Add the counts so far to the master's (once, when the run ends)."""
+        """Add the counts so far to the master's (once, when the run ends), and the time
+        spent in each model, scaled up from the calls timed."""
+        spent = [s if timed == calls or timed == 0 else s * calls / timed
+                 for s, calls, timed in zip(self.time, self.calls, self.timed)]
         self.master.calls += np.array(self.calls, dtype=np.int64)
-        self.master.time_in_models += np.array(self.time)
+        self.master.time_in_models += np.array(spent)
         self.calls = [0] * len(self.calls)
+        self.timed = [0] * len(self.calls)
         self.time = [0.0] * len(self.time)
 
     def _c_step(self, k: int, t: float, h: float, raw: tuple, in_address: int,
-                out_address: int, derivatives: tuple | None = None) -> None:
+                out_address: int, derivatives: tuple | None = None, token: int = 0,
+                timed: bool = True) -> None:
         """One FMU's step through its raw C calls (``raw[:9]``: the instance, setReal and its
         value references, doStep, getReal and its, the error maker): inputs from
         ``in_address``, input derivatives first if given (``(setRealInputDerivatives, value
         references, count, orders, address, model)``), outputs to ``out_address``. Counted,
-        timed and watched as :meth:`Master._guard` would."""
+        timed (if ``timed``) and watched (under the watchdog's ``token``, handed out by the
+        caller) as :meth:`Master._guard` would."""
         component, set_real, in_vr, n_in, do_step, get_real, out_vr, n_out, fail = raw[:9]
         self.calls[k] += 1
-        clock = time.perf_counter
-        start = clock()
         watch = self.master._watch
-        if watch is not None:  # Master._guard's stamps, inlined
-            watch.where, watch.started = (k, t, h), start
+        if watch is not None:  # Master._guard's stamp, inlined
+            watch.running = token
+        if timed:
+            start = time.perf_counter()
         status = set_real(component, in_vr, n_in, in_address)
         if status > 1:
             self._fail(k, t, h, fail("fmi2SetReal", status))
@@ -675,18 +709,20 @@ class _LeanKernel:
         status = do_step(component, t, h, 1)
         if status > 1:
             self._fail(k, t, h, fail("fmi2DoStep", status))
-        self.time[k] += clock() - start
+        if timed:
+            self.time[k] += time.perf_counter() - start
+            self.timed[k] += 1
         status = get_real(component, out_vr, n_out, out_address)
         if status > 1:
             self._fail(k, t, h, fail("fmi2GetReal", status))
         if watch is not None:
-            watch.started = 0.0
+            watch.running = 0
             if watch.abandoned:
                 raise _Abandoned
 
     def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
         if self.master._watch is not None:
-            self.master._watch.started = 0.0
+            self.master._watch.running = 0
         if isinstance(exc, SubModelError):
             raise exc
         if isinstance(exc, EndOfSimulation):
@@ -731,10 +767,13 @@ class _HeldKernel(_LeanKernel):
         rank = {k: i for i, k in enumerate(master.sequence)}
         gauss_seidel = master.options.name == "gauss-seidel"
         self.calls = [0] * len(system.models)  # added to the master's counts by :meth:`sync`
+        self.timed = [0] * len(system.models)
         self.time = [0.0] * len(system.models)
         self.done = 0  # steps completed by the last call of :meth:`steps`
         self._flat: np.ndarray | None = None
         self._read_only = np.empty(0)
+        # stands in for the watchdog when there is none: its stores cost less than the tests
+        self._unwatched = _Watchdog(math.inf)
         self.plan = []
         for k in master.sequence:
             model = system.models[k]
@@ -760,9 +799,13 @@ class _HeldKernel(_LeanKernel):
             lo = hi = None  # the inputs' columns from row n's start, read as one slice
             if raw is None and in_offset is not None:
                 lo, hi = in_offset, in_offset + src.size
+            single = raw is None and out.stop - out.start == 1
             self.plan.append((k, model, raw, in_offset, lo, hi, gather, master._identity[k],
                               system.a[k], system.b[k], m + out.start, m + out.stop,
-                              (out.stop - out.start,)))
+                              (out.stop - out.start,), single))
+        # a row holding values no Python float passed through (an FMU's, a model's several)
+        # is checked as a whole; the others' sum is checked as it is made
+        self._whole_rows = not all(entry[-1] for entry in self.plan)
 
     def step(self, t: float, h: float, n: int, flat: np.ndarray, base: int) -> None:
         """Step every model from row ``n`` to row ``n + 1`` of the table.
@@ -780,51 +823,78 @@ class _HeldKernel(_LeanKernel):
         counts the steps completed, so a failure part-way keeps the rows before it.
         """
         m = self.m
-        calls, spent, clock = self.calls, self.time, time.perf_counter
-        watch = self.master._watch
-        if flat is not self._flat:  # read-only views of it for the Python sub-models' inputs
-            self._flat, self._read_only = flat, flat.view()
-            self._read_only.flags.writeable = False
-        read_only = self._read_only
-        self.done = 0
-        for i, t in enumerate(times):
-            row = (n + i) * m
-            for k, model, raw, in_offset, lo, hi, gather, identity, a, b, o0, o1, shape \
-                    in self.plan:
-                if raw is not None:
-                    self._fmu_step(k, t, h, row, flat, base, raw, in_offset, gather, identity,
-                                   a, b)
-                    continue
-                # one block of columns: a read-only view (no copy, and the stored values
-                # cannot be altered through it); else gathered
-                x = read_only[row + lo:row + hi] if lo is not None else flat[gather + row]
-                u = x if identity else a * x + b
-                calls[k] += 1
-                start = clock()
-                if watch is not None:  # one stamp for the model's three calls
-                    watch.where, watch.started = (k, t, h), start
-                try:
-                    model.set_inputs(u)
-                    model.do_step(t, h)
-                    y = model.get_outputs()
-                except Exception as exc:
-                    self._fail(k, t, h, exc)
-                spent[k] += clock() - start
-                if watch is not None:
-                    watch.started = 0.0
+        calls, timed_calls, spent, clock = self.calls, self.timed, self.time, time.perf_counter
+        read_only, whole_rows = self._begin(flat), self._whole_rows
+        watch = self.master._watch or self._unwatched
+        tick = watch.tick  # the tokens from here on are placed by _locate
+        watch.locate = functools.partial(self._locate, tuple(times), h, tick)
+        try:
+            for i, t in enumerate(times):
+                self.done = i  # the steps before this one (read also after a hung call)
+                row = (n + i) * m
+                timed = not i % TIMED_EVERY  # the calls timed (see _LeanKernel)
+                total = 0.0  # of the single outputs: not finite if one of them is not
+                for k, model, raw, in_offset, lo, hi, gather, identity, a, b, o0, o1, shape, \
+                        single in self.plan:
+                    tick += 1
+                    if raw is not None:
+                        self._fmu_step(k, t, h, row, flat, base, raw, in_offset, gather,
+                                       identity, a, b, tick, timed)
+                        continue
+                    # one block of columns: a read-only view (no copy, and the stored values
+                    # cannot be altered through it); else gathered
+                    x = read_only[row + lo:row + hi] if lo is not None else flat[gather + row]
+                    u = x if identity else a * x + b
+                    calls[k] += 1
+                    watch.running = tick  # one token for the model's three calls
+                    if timed:
+                        start = clock()
+                    try:
+                        model.set_inputs(u)
+                        model.do_step(t, h)
+                        y = model.get_outputs()
+                    except Exception as exc:
+                        self._fail(k, t, h, exc)
+                    if timed:
+                        spent[k] += clock() - start
+                        timed_calls[k] += 1
+                    watch.running = 0
                     if watch.abandoned:
                         raise _Abandoned
-                if type(y) is not np.ndarray or y.shape != shape:
-                    y = self.master._checked_outputs(k, t, h, y)
-                flat[row + o0:row + o1] = y
-            new = flat[row + m:row + 2 * m]
-            if not math.isfinite(sum(new.tolist())):  # NaN or inf somewhere (or overflow)
-                self.master._check_finite(range(len(self.plan)), t, new, h)
-            self.done = i + 1
+                    if type(y) is not np.ndarray or y.shape != shape:
+                        y = self.master._checked_outputs(k, t, h, y)
+                    if single:  # a float stored as an item: a third of a slice's assignment
+                        value = y.item()
+                        flat[row + o0] = value
+                        total += value
+                    else:
+                        flat[row + o0:row + o1] = y
+                # NaN or inf somewhere (or a sum that overflowed: then nothing is found)
+                if total - total != 0.0 or (whole_rows and not math.isfinite(
+                        sum(flat[row + m:row + 2 * m].tolist()))):
+                    self.master._check_finite(range(len(self.plan)), t,
+                                              flat[row + m:row + 2 * m], h)
+        finally:
+            watch.tick = tick
+        self.done = len(times)
+
+    def _begin(self, flat: np.ndarray) -> np.ndarray:
+        """A read-only view of ``flat``, for the Python sub-models' inputs (made once)."""
+        if flat is not self._flat:
+            self._flat, self._read_only = flat, flat.view()
+            self._read_only.flags.writeable = False
+        return self._read_only
+
+    def _locate(self, times: tuple[float, ...], h: float, first: int,
+                token: int) -> tuple[int, float, float]:
+        """The model, time and step of the call given ``token`` in a run of :meth:`steps`
+        (the tokens after ``first``, one per model of the plan and step)."""
+        i, j = divmod(token - first - 1, len(self.plan))
+        return self.plan[j][0], times[i], h
 
     def _fmu_step(self, k: int, t: float, h: float, row: int, flat: np.ndarray, base: int,
                   raw: tuple, in_offset: int | None, gather: np.ndarray, identity: bool,
-                  a: np.ndarray, b: np.ndarray) -> None:
+                  a: np.ndarray, b: np.ndarray, token: int, timed: bool) -> None:
         """One FMU's step through its raw C calls, inputs from row ``row`` (a flat index),
         outputs straight into the next row."""
         out_offset, buffer, buffer_address = raw[9:]
@@ -834,7 +904,8 @@ class _HeldKernel(_LeanKernel):
             x = flat[gather + row]
             buffer[:] = x if identity else a * x + b
             address = buffer_address
-        self._c_step(k, t, h, raw, address, base + 8 * (row + self.m) + out_offset)
+        self._c_step(k, t, h, raw, address, base + 8 * (row + self.m) + out_offset,
+                     token=token, timed=timed)
 
 
 class _ExtrapolatingKernel(_LeanKernel):
@@ -885,6 +956,7 @@ class _ExtrapolatingKernel(_LeanKernel):
         unit = (np.array(step_derivative_weights(p, False)),
                 np.array(step_derivative_weights(p, True)))
         self.calls = [0] * len(system.models)  # added to the master's counts by :meth:`sync`
+        self.timed = [0] * len(system.models)
         self.time = [0.0] * len(system.models)
         self._flat: np.ndarray | None = None  # the table as given, and as rows
         self._rows = np.empty((0, m))
@@ -1008,8 +1080,9 @@ class _ExtrapolatingKernel(_LeanKernel):
             d_model[:q] = d
             d_model[q:] = 0.0
             derivatives = (set_derivatives, deriv_vr, n_deriv, deriv_order, d_address, model)
+        watch = self.master._watch
         self._c_step(k, t, h, raw, buffer_address, base + 8 * (row + m) + out_offset,
-                     derivatives)
+                     derivatives, 0 if watch is None else watch.stamp(k, t, h))
 
     def _python_step(self, k: int, t: float, h: float, n: int, flat: np.ndarray, model: Any,
                      block: Any, gather: Any, w: Any, deriv: Any, identity: bool, a: Any,
@@ -1028,10 +1101,11 @@ class _ExtrapolatingKernel(_LeanKernel):
             x = (w * flat[gather + row]).sum(axis=0)
         u = x if identity else a * x + b
         calls[k] += 1
-        start = clock()
+        self.timed[k] += 1
         watch = master._watch
         if watch is not None:  # one stamp for the model's calls
-            watch.where, watch.started = (k, t, h), start
+            watch.stamp(k, t, h)
+        start = clock()
         try:
             model.set_inputs(u)
             if deriv is not None:
@@ -1042,7 +1116,7 @@ class _ExtrapolatingKernel(_LeanKernel):
             self._fail(k, t, h, exc)
         spent[k] += clock() - start
         if watch is not None:
-            watch.started = 0.0
+            watch.running = 0
             if watch.abandoned:
                 raise _Abandoned
         if type(y) is not np.ndarray or y.shape != (out.stop - out.start,):

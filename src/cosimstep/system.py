@@ -143,6 +143,11 @@ class System:
     # -- validation --------------------------------------------------------------------------
     def problems(self) -> list[Problem]:
         """Every problem in the system; an empty list means it can run."""
+        return self._problems(self._links())
+
+    def _problems(self, links: list[Connection]) -> list[Problem]:
+        """:meth:`problems`, given :meth:`_links` (compiling a large system needs them
+        again, and they are its costliest part)."""
         problems: list[Problem] = []
         fed: dict[tuple[str, str], Connection] = {}
         for c in self.connections:
@@ -151,7 +156,7 @@ class System:
                 problems.append(Problem(c.label, f"arrays of different sizes: {sizes[0]} "
                                         f"outputs, {sizes[1]} inputs", "connect arrays of "
                                         "equal size, or single elements (model.y[2])"))
-        for c in self._links():
+        for c in links:
             problems.extend(self._check_connection(c, fed))
         for name, model in self.models.items():
             for port in model.inputs:
@@ -246,11 +251,11 @@ class System:
         out, ins = self._array_ports(c.source, True), self._array_ports(c.target, False)
         return list(zip(out or [], ins or []))
 
-    def _port_graph(self) -> dict[str, set[str]]:
+    def _port_graph(self, links: list[Connection] | None = None) -> dict[str, set[str]]:
         """Dependencies at one instant: an input depends on its source; a feedthrough output on
         its inputs. A cycle in this graph is an algebraic loop."""
         graph: dict[str, set[str]] = {}
-        for c in self._links():
+        for c in self._links() if links is None else links:
             graph.setdefault(f"{c.target}", set()).add(f"{c.source}")
         for name, model in self.models.items():
             for out, ins in model.capabilities.feedthrough.items():
@@ -262,19 +267,21 @@ class System:
         of one strongly connected component of :meth:`_port_graph`, sorted)."""
         return [sorted(c) for c in _components(self._port_graph()) if len(c) > 1]
 
-    def _settle_blocks(self, names: list[str]) -> list[tuple[int, ...]]:
+    def _settle_blocks(self, names: list[str], graph: dict[str, set[str]],
+                       components: list[set[str]]) -> list[tuple[int, ...]]:
         """The feedthrough models to settle, in dependency order: one model alone, or the
         models of an algebraic loop together (strongly connected components of the port
-        graph, condensed and sorted topologically)."""
-        graph = self._port_graph()
-        components = _components(graph)
+        ``graph``, condensed and sorted topologically)."""
+        if not any(m.capabilities.feedthrough for m in self.models.values()):
+            return []  # nothing to settle (and the sort is most of a large system's compile)
+        index = {name: k for k, name in enumerate(names)}
         of = {node: i for i, c in enumerate(components) for node in c}
         condensed: dict[int, set[int]] = {i: set() for i in range(len(components))}
         for node, deps in graph.items():
             condensed[of[node]].update(of[d] for d in deps if of[d] != of[node])
         blocks: list[tuple[int, ...]] = []
         for i in graphlib.TopologicalSorter(condensed).static_order():
-            models = sorted({names.index(m) for m, _, port in
+            models = sorted({index[m] for m, _, port in
                              (n.partition(".") for n in components[i])
                              if m in self.models
                              and self.models[m].capabilities.feedthrough.get(port)})
@@ -291,7 +298,10 @@ class System:
     # -- compilation -------------------------------------------------------------------------
     def compile(self) -> CompiledSystem:
         """Validate and build the index tables for a master."""
-        self.validate()
+        links = self._links()
+        problems = self._problems(links)
+        if problems:
+            raise ConfigurationError(problems)
         names = list(self.models)
         models = [self.models[n] for n in names]
         slices, out_names, out_units, offset = [], [], [], 0
@@ -303,7 +313,7 @@ class System:
                 out_names.append(f"{name}.{port.name}")
                 out_units.append(port.unit)
                 offset += 1
-        by_target = {c.target: c for c in self._links()}
+        by_target = {c.target: c for c in links}
         src, a, b = [], [], []
         for name, model in zip(names, models):
             s = np.zeros(len(model.inputs), dtype=int)
@@ -323,8 +333,10 @@ class System:
             src.append(s)
             a.append(ga)
             b.append(gb)
-        blocks = self._settle_blocks(names)
-        loop_ports = self.loops()
+        graph = self._port_graph(links)
+        components = _components(graph)
+        blocks = self._settle_blocks(names, graph, components)
+        loop_ports = [sorted(c) for c in components if len(c) > 1]  # as :meth:`loops`
         loops = [b for b in blocks if len(b) > 1 or any(
             p.partition(".")[0] == names[b[0]] for c in loop_ports for p in c)]
         order = [k for b in blocks for k in b]

@@ -194,27 +194,17 @@ def test_call_ending_while_the_watchdog_gives_up_stops_the_run(monkeypatch) -> N
     import cosimstep.masters as masters
 
     release = threading.Event()
+    give_up = masters._Watchdog._give_up
 
-    class Stamp(float):
-        """A call's start time whose comparison lets the blocked call return first."""
+    def late_give_up(self: masters._Watchdog, token: int) -> bool:
+        """Raise the flag, then let the blocked call return and reach its end before the
+        watchdog looks whether it is still the same call."""
+        self.abandoned = True
+        release.set()
+        time.sleep(0.3)
+        return give_up(self, token)
 
-        def _first(self) -> None:
-            if not release.is_set():
-                release.set()
-                time.sleep(0.3)  # the worker's call returns and reaches its end meanwhile
-
-        def __eq__(self, other: object) -> bool:
-            self._first()
-            return float(self) == other
-
-        def __ne__(self, other: object) -> bool:
-            self._first()
-            return float(self) != other
-
-        __hash__ = float.__hash__
-
-    clock = SimpleNamespace(perf_counter=lambda: Stamp(time.perf_counter()))
-    monkeypatch.setattr(masters, "time", clock)
+    monkeypatch.setattr(masters._Watchdog, "_give_up", late_give_up)
     model = Released(0.5, release)
     s = System()
     s.add("clock", model).add("sink", Integrator(unit="s"))
@@ -502,3 +492,41 @@ def test_failures_in_the_extrapolating_kernel_end_both_loops_alike(
     assert lean.calls == {"clock": 6, "sink": 6 if mode == "nan" else 5}
     assert_agreeing_run(lean, runs["general"])
     assert_agreeing_store(tmp_path / "lean.db", tmp_path / "general.db")
+
+
+class Metered(SubModel):
+    """Each step takes exactly one second of the clock ``now`` (a list holding its reading)."""
+
+    def __init__(self, now: list[float]) -> None:
+        self.inputs, self.outputs, self.now = (), (Port("y", "1", 0.0),), now
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        pass
+
+    def do_step(self, t: float, h: float) -> None:
+        self.now[0] += 1.0
+
+    def get_outputs(self) -> np.ndarray:
+        return np.array([self.now[0]])
+
+
+def test_the_held_kernel_times_a_sample_of_its_calls_and_scales_it_up(monkeypatch) -> None:
+    """The lean held kernel reads the clock around one call in TIMED_EVERY, not around each;
+    the time it reports is the sample's, scaled by calls over calls timed. On a clock that
+    only the sub-model advances (one second a step), that is the time spent, exactly."""
+    import cosimstep.masters as masters
+
+    now = [0.0]
+    reads = [0]
+
+    def clock() -> float:
+        reads[0] += 1
+        return now[0]
+
+    monkeypatch.setattr(masters, "time", SimpleNamespace(perf_counter=clock))
+    s = System().add("a", Metered(now)).add("b", Metered(now))
+    result = simulate(s, 2.0, Fixed(0.1), MasterOptions("jacobi", 0, call_timeout=0))
+    assert result.calls == {"a": 20, "b": 20}
+    assert result.time_in_models == {"a": 20.0, "b": 20.0}
+    # two reads per timed call: 80 to time every call; measured 28 (80 with TIMED_EVERY = 1)
+    assert reads[0] < 40
