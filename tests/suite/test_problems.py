@@ -28,12 +28,14 @@ CONVERGENCE = {
     "pendulum_strongly_mixed": (1.0, 200, 1.40e-5, 1.82e-6, 6.0),   # ratio 7.70
     "triple_pendulum": (1.0, 100, 6.15e-5, 7.02e-6, 6.0),           # ratio 8.77
     "linear_lambda1000": (0.1, 200, 1.84e-6, 2.35e-7, 6.0),        # ratio 7.83
+    "van_der_pol": (2.0, 100, 3.12e-6, 4.16e-7, 6.0),              # ratio 7.50
+    "brusselator": (2.0, 100, 8.02e-6, 1.08e-6, 6.0),              # ratio 7.42
 }
 
 
 def test_registry_order_and_lookup() -> None:
     assert list(suite.PROBLEMS)[:2] == ["pendulum_mixed", "linear_fast_slow"]
-    assert len(suite.PROBLEMS) == 13
+    assert len(suite.PROBLEMS) == 15
     assert set(CONVERGENCE) == set(suite.PROBLEMS)
     assert suite.get("kpr_chirp") is suite.PROBLEMS["kpr_chirp"]
     with pytest.raises(KeyError, match="known: pendulum_mixed, linear_fast_slow"):

@@ -20,7 +20,7 @@ coupling. ``benchmarks/suite.py`` runs every problem at several tolerances.
 
 from __future__ import annotations
 
-from cosimstep.suite import classic, mechanical, rates
+from cosimstep.suite import classic, cycles, mechanical, rates
 from cosimstep.suite.base import Problem, UnannouncedEvents
 
 __all__ = ["PROBLEMS", "Problem", "UnannouncedEvents", "get"]
@@ -86,6 +86,12 @@ PROBLEMS: dict[str, Problem] = {p.name: p for p in (
             ("multirate", "linear"),
             "cosimstep benchmark problem 9 (the λ = 1000 variant of problem 6)",
             2.0, classic.linear_lambda1000, 0.2),
+    Problem("van_der_pol", "Van der Pol oscillator, μ = 3, x | y (relaxation limit cycle)",
+            ("limit cycle", "nonlinear", "growing errors"), cycles.VDP_SOURCE,
+            12.0, cycles.van_der_pol, 2.0),
+    Problem("brusselator", "Brusselator, A = 1, B = 3, x | y (limit cycle with spikes)",
+            ("limit cycle", "nonlinear", "growing errors"), cycles.BRUSSELATOR_SOURCE,
+            20.0, cycles.brusselator, 2.0),
 )}
 
 
