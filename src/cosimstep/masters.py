@@ -236,13 +236,16 @@ class _Watchdog:
         timeout = self.timeout
         quarter = wait = 0.25 * timeout
         seen, since = 0, 0.0  # the token at the last look, and when it was first seen
+        given_up = 0  # the call abandoned in vain (it ended in that instant; see the class)
         try:
             while not done.wait(wait):
                 token, now = self.running, time.perf_counter()
                 if token != seen:
                     seen, since = token, now
-                elif token and now - since >= timeout and self._give_up(token):
-                    raise self._timeout(names, token)
+                elif token and now - since >= timeout:
+                    if self._give_up(token):
+                        raise self._timeout(names, token)
+                    given_up = token
                 # a quarter of the limit, or the deadline of the call seen if sooner
                 wait = max(min(quarter, since + timeout - now) if token else quarter, 1e-3)
         except KeyboardInterrupt:
@@ -251,7 +254,7 @@ class _Watchdog:
             done.wait(timeout)
             raise
         if not box:  # it stopped on the flag raised in the instant its call ended
-            raise self._timeout(names, seen)
+            raise self._timeout(names, given_up)
         ok, value = box[0]
         if not ok:
             raise value
@@ -694,8 +697,9 @@ class _LeanKernel:
         watch = self.master._watch
         if watch is not None:  # Master._guard's stamp, inlined
             watch.running = token
-        if timed:
+        if timed:  # counted before the call: a call that fails is counted and timed as one
             start = time.perf_counter()
+            self.timed[k] += 1
         status = set_real(component, in_vr, n_in, in_address)
         if status > 1:
             self._fail(k, t, h, fail("fmi2SetReal", status))
@@ -711,7 +715,6 @@ class _LeanKernel:
             self._fail(k, t, h, fail("fmi2DoStep", status))
         if timed:
             self.time[k] += time.perf_counter() - start
-            self.timed[k] += 1
         status = get_real(component, out_vr, n_out, out_address)
         if status > 1:
             self._fail(k, t, h, fail("fmi2GetReal", status))
@@ -805,7 +808,7 @@ class _HeldKernel(_LeanKernel):
                               (out.stop - out.start,), single))
         # a row holding values no Python float passed through (an FMU's, a model's several)
         # is checked as a whole; the others' sum is checked as it is made
-        self._whole_rows = not all(entry[-1] for entry in self.plan)
+        self._whole_rows = any(entry[2] is not None or entry[12][0] > 1 for entry in self.plan)
 
     def step(self, t: float, h: float, n: int, flat: np.ndarray, base: int) -> None:
         """Step every model from row ``n`` to row ``n + 1`` of the table.
@@ -834,6 +837,7 @@ class _HeldKernel(_LeanKernel):
                 row = (n + i) * m
                 timed = not i % TIMED_EVERY  # the calls timed (see _LeanKernel)
                 total = 0.0  # of the single outputs: not finite if one of them is not
+                odd = False  # a single output that was no float: the row is checked whole
                 for k, model, raw, in_offset, lo, hi, gather, identity, a, b, o0, o1, shape, \
                         single in self.plan:
                     tick += 1
@@ -847,8 +851,9 @@ class _HeldKernel(_LeanKernel):
                     u = x if identity else a * x + b
                     calls[k] += 1
                     watch.running = tick  # one token for the model's three calls
-                    if timed:
+                    if timed:  # counted before the call, as in _c_step
                         start = clock()
+                        timed_calls[k] += 1
                     try:
                         model.set_inputs(u)
                         model.do_step(t, h)
@@ -857,7 +862,6 @@ class _HeldKernel(_LeanKernel):
                         self._fail(k, t, h, exc)
                     if timed:
                         spent[k] += clock() - start
-                        timed_calls[k] += 1
                     watch.running = 0
                     if watch.abandoned:
                         raise _Abandoned
@@ -865,12 +869,14 @@ class _HeldKernel(_LeanKernel):
                         y = self.master._checked_outputs(k, t, h, y)
                     if single:  # a float stored as an item: a third of a slice's assignment
                         value = y.item()
-                        flat[row + o0] = value
-                        total += value
-                    else:
-                        flat[row + o0:row + o1] = y
+                        if type(value) is float:
+                            flat[row + o0] = value
+                            total += value
+                            continue
+                        odd = True  # (an int, a long double, a complex …: stored as before)
+                    flat[row + o0:row + o1] = y
                 # NaN or inf somewhere (or a sum that overflowed: then nothing is found)
-                if total - total != 0.0 or (whole_rows and not math.isfinite(
+                if total - total != 0.0 or ((whole_rows or odd) and not math.isfinite(
                         sum(flat[row + m:row + 2 * m].tolist()))):
                     self.master._check_finite(range(len(self.plan)), t,
                                               flat[row + m:row + 2 * m], h)

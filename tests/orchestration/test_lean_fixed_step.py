@@ -530,3 +530,40 @@ def test_the_held_kernel_times_a_sample_of_its_calls_and_scales_it_up(monkeypatc
     assert result.time_in_models == {"a": 20.0, "b": 20.0}
     # two reads per timed call: 80 to time every call; measured 28 (80 with TIMED_EVERY = 1)
     assert reads[0] < 40
+
+
+class Typed(SubModel):
+    """One output returned in a given NumPy type: its value at step 5 is ``late``, t before."""
+
+    def __init__(self, dtype: type, late: object) -> None:
+        self.inputs, self.outputs = (), (Port("y", "1", 0.0),)
+        self.dtype, self.late, self.t, self.steps = dtype, late, 0.0, 0
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        pass
+
+    def do_step(self, t: float, h: float) -> None:
+        self.t, self.steps = t + h, self.steps + 1
+
+    def get_outputs(self) -> np.ndarray:
+        value = self.late if self.steps >= 5 else round(10 * self.t)
+        return np.array([value], dtype=self.dtype)
+
+
+@pytest.mark.parametrize("dtype, late", [(np.int64, 7), (np.longdouble, "1e400")],
+                         ids=["int", "long double beyond float64"])
+def test_outputs_that_are_no_float_are_stored_and_checked_as_by_the_general_step(
+        dtype: type, late: object) -> None:
+    """The held kernel stores a single float output as an item and checks the row by the
+    floats' running sum; an output of another type goes the general step's way: an int is
+    stored as its float, a long double beyond float64's range becomes inf and ends the run."""
+    runs = []
+    for controller in (Fixed(0.1), GeneralFixed(0.1)):
+        s = System().add("typed", Typed(dtype, dtype(late))).add("sink", Integrator(unit="1"))
+        s.connect("typed.y", "sink.u")
+        runs.append(simulate(s, 1.0, controller, MasterOptions("jacobi", 0, call_timeout=0)))
+    assert_same_run(*runs)
+    if dtype is np.longdouble:
+        assert runs[0].status == "failed" and "non-finite" in runs[0].message
+    else:
+        assert runs[0].success and runs[0].values[-1, 0] == 7.0

@@ -46,9 +46,9 @@ def van_der_pol(mu: float = 3.0) -> tuple[System, Reference]:
     split x | y, from (2, 0), 12 s.
 
     Time scales: with μ = 3 the cycle (period about 8.9 s) creeps along its two slow branches
-    and jumps between them in about half a second. What can go wrong: the slow branches attract, so an
-    error across them fades (a short probe reads it as a short error memory), while a phase
-    error lives on and returns, multiplied by the jump's slope, at every jump.
+    and jumps between them in about half a second. What can go wrong: the slow branches
+    attract, so an error across them fades (a short probe reads it as a short error memory),
+    while a phase error lives on and returns, multiplied by the jump's slope, at every jump.
     """
     def fx(t: float, s: np.ndarray, u: np.ndarray, _: object) -> np.ndarray:
         return np.array([mu * (s[0] - s[0] ** 3 / 3.0 - u[0])])
