@@ -207,6 +207,7 @@ class ControllerLoop(_Loop):
         ctx.push(t, attempt.y)
         if self.companion is not None:
             self.companion.accepted(t, attempt.y, t == landing)
+            self._feed_back(controller)
         if at_event:
             ctx.restart()
             if self.companion is not None:
@@ -222,6 +223,15 @@ class ControllerLoop(_Loop):
             # tolerance, or an indicator already at 0 when the step began
             late = not located and h > EVENT_TOL * max(1.0, abs(t))
             self.fire(self.t, late, before)  # type: ignore[misc]
+
+    def _feed_back(self, controller: Any) -> None:
+        """With ``feedback``: the growth the companion measured beyond the summed local
+        estimates, for the step control (see :attr:`StepPolicy.feedback`)."""
+        policy = getattr(controller, "policy", None)
+        summed = getattr(controller, "error_estimate", 0.0)
+        if policy is None or not policy.feedback or not summed > 0.0:
+            return
+        policy.propagation = max(1.0, self.companion.estimate / summed)
 
     def _companion_calls(self) -> int:
         return int(self.companion.calls.sum()) if self.companion is not None else 0

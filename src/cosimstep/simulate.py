@@ -131,6 +131,10 @@ def estimate_problems(estimate: str, controller: Controller, master: MasterOptio
         out.append((f"'rerun' re-runs at 10x the tolerance; controller '{controller.name}' "
                     "has none", "give --tol TOL, or drop --estimate"))
     if estimate != "richardson":
+        if getattr(getattr(controller, "policy", None), "feedback", False):
+            out.append(("the step control's feedback reads the companion's estimate, and "
+                        f"estimate {estimate!r} runs none", "add --estimate richardson, or "
+                        "drop the controller option feedback"))
         return out
     # the companion run repeats what pc keeps over one common step sequence
     if controller.name != "pc":

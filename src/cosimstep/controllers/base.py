@@ -270,6 +270,18 @@ class StepPolicy:
         longer than the memory spends the whole budget, not more: its own error stands in
         full at its end, however fast it fades afterwards (uncapped, a step of 165 s under a
         memory of 25 s could make 6.5 times the tolerance, and did).
+    feedback:
+        Tighten the share by the propagation the run's companion measures (opt-in; needs
+        ``estimate="richardson"``, so ``pc`` on a synchronous master): after every accepted
+        step the ratios are multiplied by the companion's global estimate over the summed
+        local estimates (:attr:`propagation`), where that is above 1. The summed estimates
+        miss errors that grow — a limit cycle's phase error comes back, multiplied by the
+        slope, at every jump; a pendulum's amplitude error becomes a growing phase drift —
+        and the companion, the run repeated beside itself at doubled steps, sees them as they
+        happen. Only tightening: where the factor is below 1 (errors that fade) the companion
+        also ran below the error on the pendulums (0.26–1 × it), and loosening on it took them
+        to 15 × tol. It cannot help before the growth has shown: the first spike of the
+        Brusselator is paid in full (measured in docs/concepts.md, "Limit cycles").
     cancellation:
         With ``global_error``: the sum of the local error estimates may reach
         ``cancellation × tol`` before a step is rejected. The control aims at ``target`` of
@@ -307,6 +319,7 @@ class StepPolicy:
     target: float = 0.1
     global_error: bool = True
     distribute: bool = False
+    feedback: bool = False
     cancellation: float = 5.0
 
     def __post_init__(self) -> None:
@@ -339,6 +352,8 @@ class StepPolicy:
         self._rejected: tuple[float, float, float] | None = None  # t, h, estimate / tol
         self.floor = 0.0  # the estimates' noise floor, a share of the tolerance (:meth:`noise`)
         self.noise_steps = 0  # times a floor was recognised
+        # measured growth of the errors beyond their sum (feedback), set by the run's loop
+        self.propagation = 1.0
 
     def start(self, t0: float, t_end: float) -> None:
         self._span = t_end - t0
@@ -349,6 +364,7 @@ class StepPolicy:
         self._last_c = None
         self._count, self._elapsed, self._ends = 0, 0.0, []
         self._rejected, self.floor, self.noise_steps = None, 0.0, 0
+        self.propagation = 1.0
 
     @property
     def extra_power(self) -> int:
@@ -377,7 +393,7 @@ class StepPolicy:
         else:
             r = np.abs(error) / allowed
         i = int(np.argmax(r)) if r.size else 0
-        return (float(r[i]) if r.size else 0.0), i
+        return (float(r[i]) * self.propagation if r.size else 0.0), i
 
     def _steps(self, h: float) -> float:
         """How many steps share the budget (``distribute``): those whose errors add up with
