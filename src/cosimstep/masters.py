@@ -778,6 +778,9 @@ class _HeldKernel(_LeanKernel):
         # stands in for the watchdog when there is none: its stores cost less than the tests
         self._unwatched = _Watchdog(math.inf)
         self.plan = []
+        # a row holding values no Python float passed through (an FMU's, a model's several)
+        # is checked as a whole; the others' sum is checked as it is made
+        self._whole_rows = False
         for k in master.sequence:
             model = system.models[k]
             src = np.asarray(system.src[k], dtype=int)
@@ -803,12 +806,10 @@ class _HeldKernel(_LeanKernel):
             if raw is None and in_offset is not None:
                 lo, hi = in_offset, in_offset + src.size
             single = raw is None and out.stop - out.start == 1
+            self._whole_rows |= raw is not None or out.stop - out.start > 1
             self.plan.append((k, model, raw, in_offset, lo, hi, gather, master._identity[k],
                               system.a[k], system.b[k], m + out.start, m + out.stop,
                               (out.stop - out.start,), single))
-        # a row holding values no Python float passed through (an FMU's, a model's several)
-        # is checked as a whole; the others' sum is checked as it is made
-        self._whole_rows = any(entry[2] is not None or entry[12][0] > 1 for entry in self.plan)
 
     def step(self, t: float, h: float, n: int, flat: np.ndarray, base: int) -> None:
         """Step every model from row ``n`` to row ``n + 1`` of the table.
@@ -970,6 +971,9 @@ class _ExtrapolatingKernel(_LeanKernel):
         self._scaled: list[tuple[np.ndarray, np.ndarray]] = []  # (unit weights, scaled ones)
         self.done = 0  # steps completed by the last call of :meth:`steps`
         self.plan = []
+        # a row holding values no Python float passed through (an FMU's, a model's several)
+        # is checked as a whole; the others' sum is checked as it is made
+        self._whole_rows = False
         for k in master.sequence:
             model = system.models[k]
             src = np.asarray(system.src[k], dtype=int)

@@ -63,6 +63,11 @@ def _article(word: str) -> str:
     return "an" if word[0] in "aeiou" else "a"
 
 
+def _loop_ports(components: list[set[str]]) -> list[list[str]]:
+    """The algebraic loops among strongly connected ``components``: those of several ports."""
+    return [sorted(c) for c in components if len(c) > 1]
+
+
 def _components(graph: dict[str, set[str]]) -> list[set[str]]:
     """Strongly connected components of a dependency graph (SciPy's csgraph)."""
     from scipy.sparse import csr_matrix
@@ -265,7 +270,7 @@ class System:
     def loops(self) -> list[list[str]]:
         """The algebraic loops: each a cycle of ports through direct feedthrough (the ports
         of one strongly connected component of :meth:`_port_graph`, sorted)."""
-        return [sorted(c) for c in _components(self._port_graph()) if len(c) > 1]
+        return _loop_ports(_components(self._port_graph()))
 
     def _settle_blocks(self, names: list[str], graph: dict[str, set[str]],
                        components: list[set[str]]) -> list[tuple[int, ...]]:
@@ -336,7 +341,7 @@ class System:
         graph = self._port_graph(links)
         components = _components(graph)
         blocks = self._settle_blocks(names, graph, components)
-        loop_ports = [sorted(c) for c in components if len(c) > 1]  # as :meth:`loops`
+        loop_ports = _loop_ports(components)
         loops = [b for b in blocks if len(b) > 1 or any(
             p.partition(".")[0] == names[b[0]] for c in loop_ports for p in c)]
         order = [k for b in blocks for k in b]
