@@ -249,6 +249,38 @@ def summary(problems: list[str], masters: list[str], adaptive: list[dict]) -> li
     return out
 
 
+def separated_scales(problems: list[str], adaptive: list[dict]) -> list[str]:
+    """Issue 13, item 6, for every problem of the class "separated scales": the multi-rate
+    master's slow/fast call ratio (the sub-model with the fewest calls over the one with the
+    most) and its calls against `pc`'s at equal error (`pc`'s line interpolated log–log)."""
+    names = [p for p in problems if "separated scales" in suite.get(p).classes]
+    if not names:
+        return []
+    out = ["### Separated scales (issue 13, item 6)", "",
+           "Target: slow/fast calls ≤ 0.1 under the multi-rate master, and no more calls than "
+           "`pc` at equal measured error. `pc` at equal error: its runs' calls interpolated "
+           "log–log at the multi-rate run's error; where that error is below every `pc` run's, "
+           "the calls of `pc`'s most accurate run, a lower bound (`>`).", "",
+           "| problem | tol | multirate calls per sub-model | slow/fast | multirate calls | "
+           "max scaled error | `pc` calls at equal error | multirate / `pc` |",
+           "|---|---|---|---|---|---|---|---|"]
+    for name in names:
+        line = [r for r in adaptive if r["problem"] == name and r["kind"] == "pc"]
+        best = min((r for r in line if _ok(r)), key=lambda r: r["err"], default=None)
+        for r in sorted((r for r in adaptive if r["problem"] == name
+                         and r["kind"] == "multirate" and _ok(r)), key=lambda r: -r["tol"]):
+            per = r["per_model"]
+            equal, bound = calls_at(line, r["err"]), ""
+            if math.isnan(equal) and best is not None and r["err"] < best["err"]:
+                equal, bound = best["calls"], ">"
+            ratio = r["calls"] / equal if math.isfinite(equal) else math.nan
+            out.append(f"| {name} | {r['tol']:g} | {' / '.join(str(c) for c in per.values())} "
+                       f"| {min(per.values()) / max(per.values()):.3f} | {r['calls']} | "
+                       f"{_g(r['err'])} | {bound}{_g(equal, '.0f')} | "
+                       f"{'<' if bound else ''}{_g(ratio, '.2f')} |")
+    return out
+
+
 FIGURE = ROOT / "docs" / "figures" / "suite_estimates.png"
 
 
@@ -363,6 +395,7 @@ def main(argv: list[str] | None = None) -> None:
            "log–log at the run's error (— outside the line). Raw results: "
            "`benchmarks/results/suite.json`.", "", *sources(problems), "",
            *summary(problems, masters, adaptive), "",
+           *separated_scales(problems, adaptive), "",
            "![own estimate / measured error](figures/suite_estimates.png)", ""]
     for p in problems:
         out += problem_section(p, [r for r in adaptive if r["problem"] == p],

@@ -21,6 +21,7 @@ CONVERGENCE = {
     "boundary_layer": (0.01, 500, 6.51e-7, 8.72e-8, 6.0),           # ratio 7.47
     "kpr_separated": (0.5, 100, 4.65e-6, 5.92e-7, 6.0),             # ratio 7.86
     "kpr_chirp": (0.5, 100, 4.66e-6, 5.92e-7, 6.0),                 # ratio 7.87
+    "kpr_forced": (0.5, 100, 6.01e-4, 7.47e-5, 6.0),                # ratio 8.04
     "quarter_car_announced": (1.5, 400, 8.78e-4, 1.09e-4, 6.0),     # ratio 8.02
     # the unannounced road step: a step straddling the jump costs one order (ratio 4.09)
     "quarter_car_unannounced": (1.5, 400, 2.72e-3, 6.64e-4, 3.0),
@@ -35,7 +36,7 @@ CONVERGENCE = {
 
 def test_registry_order_and_lookup() -> None:
     assert list(suite.PROBLEMS)[:2] == ["pendulum_mixed", "linear_fast_slow"]
-    assert len(suite.PROBLEMS) == 15
+    assert len(suite.PROBLEMS) == 16
     assert set(CONVERGENCE) == set(suite.PROBLEMS)
     assert suite.get("kpr_chirp") is suite.PROBLEMS["kpr_chirp"]
     with pytest.raises(KeyError, match="known: pendulum_mixed, linear_fast_slow"):
@@ -80,6 +81,18 @@ def test_kpr_reference_matches_exact_solution(chirp: bool) -> None:
     got = reference.values(times, ["fast.u", "slow.v"])
     # measured max deviation: 6.2e-11 (constant ω) and 5.9e-11 (chirp)
     assert np.max(np.abs(got - kpr_exact(times, chirp, problem.until))) < 1e-9
+
+
+def test_kpr_forced_reference_matches_exact_solution() -> None:
+    problem = suite.get("kpr_forced")
+    _, reference = problem.build()
+    reference.solve(0.0, problem.until)
+    times = np.linspace(0.0, problem.until, 2001)
+    got = reference.values(times, ["fast.u", "slow.v", "source.p", "source.q", "fast.w"])
+    exact = np.column_stack([kpr_exact(times), np.cos(100.0 * times), np.sin(100.0 * times),
+                             np.zeros_like(times)])
+    # measured max deviation 1.3e-10 (the forcing's phase), w within 1.6e-12 of 0
+    assert np.max(np.abs(got - exact)) < 1e-9
 
 
 def test_quarter_car_announced_and_unannounced() -> None:

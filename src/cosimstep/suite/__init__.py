@@ -59,6 +59,11 @@ PROBLEMS: dict[str, Problem] = {p.name: p for p in (
             ("fast forcing of changing frequency", "multirate", "singularity", "nonlinear"),
             rates.KPR_SOURCE + "; the chirped phase is our change",
             5.0, rates.kpr_chirp, 0.5),
+    Problem("kpr_forced", "KPR problem with its forcing from a source sub-model; the slow part "
+            "reads the fast residual (separated scales)",
+            ("separated scales", "multirate", "fast forcing", "three sub-models", "nonlinear"),
+            rates.KPR_SOURCE + "; the forcing as a sub-model of its own and the slow part "
+            "reading the fast residual as a state are our split", 5.0, rates.kpr_forced, 0.5),
     Problem("quarter_car_announced", "quarter car, chassis | wheel, 5 cm road step at 1 s "
             "announced", ("discontinuous input", "announced", "linear"), _QUARTER_CAR,
             3.0, mechanical.quarter_car_announced, 1.5),

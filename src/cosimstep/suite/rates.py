@@ -147,3 +147,72 @@ def kpr_chirp() -> tuple[System, Reference]:
     part at the start is twice too long at the end; a controller must keep shrinking it.
     """
     return _kpr(chirp=True, until=5.0)
+
+
+def kpr_forced() -> tuple[System, Reference]:
+    """KPR with separated scales: the forcing comes from a sub-model of its own, and the slow
+    part reads the fast part's residual instead of its state; ω = 100 rad/s, 5 s.
+
+    Sub-models: ``source`` integrates the forcing p = cos ωt, q = sin ωt (p' = −ωq, q' = ωp);
+    ``fast`` holds u and the residual w and receives p, q and v,
+    u' = G a + e b(t,v) − ω q/(2u) with a = (u² − 3 − p)/(2u), and w' = da/dt along the
+    solution (∂a/∂u·u' + ∂a/∂p·p'), so w = a; ``slow`` holds v and receives w,
+    v' = e w − b(t,v) − sin t/(2v). G, e, b as in :func:`kpr_separated`. The exact solution is
+    that of the KPR problem: u = √(3 + cos ωt), v = √(2 + cos t), and w = 0.
+
+    Why this split: in :func:`kpr_separated` the slow sub-model evaluates the fast residual
+    itself and so reads u at the fast frequency. Here nothing the slow one exchanges is fast,
+    while the fast one receives its forcing through the coupling (a signal source, a wave load)
+    and must take communication steps that resolve it: the situation in which a multi-rate
+    master should let the slow part take far longer steps (the scale ratio, ω over the slow
+    rate of 1 s⁻¹, is 100; issue 13, item 6). What can go wrong: a single-rate master steps
+    the slow part at the forcing's rate; and a perturbation of w is never damped (w only
+    integrates da/dt, like a position integrating a velocity) and drives v, so an error there
+    lasts the whole run, while the larger part of a local error, in u, fades at rate |G|: a
+    short look at a perturbation sees it fade.
+    """
+    G, e, omega = KPR["G"], KPR["e"], KPR["omega"]
+
+    def b(t: float, v: float) -> float:
+        return (-2.0 + v * v - math.cos(t)) / (2.0 * v)
+
+    def rates(t: float, u: float, v: float, p: float, q: float) -> tuple[float, float]:
+        du = G * (u * u - 3.0 - p) / (2.0 * u) + e * b(t, v) - omega * q / (2.0 * u)
+        return du, (0.5 + (3.0 + p) / (2.0 * u * u)) * du + omega * q / (2.0 * u)
+
+    def dv(t: float, v: float, w: float) -> float:
+        return e * w - b(t, v) - math.sin(t) / (2.0 * v)
+
+    def source(t: float, x: np.ndarray, u: np.ndarray, _: Mapping) -> np.ndarray:
+        return np.array([-omega * x[1], omega * x[0]])
+
+    def fast(t: float, x: np.ndarray, u: np.ndarray, _: Mapping) -> np.ndarray:
+        return np.array(rates(t, x[0], u[2], u[0], u[1]))
+
+    def slow(t: float, x: np.ndarray, u: np.ndarray, _: Mapping) -> np.ndarray:
+        return np.array([dv(t, x[0], u[0])])
+
+    def whole(t: float, x: np.ndarray, u: np.ndarray, _: Mapping) -> np.ndarray:
+        p, q, uu, w, v = x
+        return np.array([-omega * q, omega * p, *rates(t, uu, v, p, q), dv(t, v, w)])
+
+    u0, v0 = kpr_exact(np.array([0.0]))[0]
+    start = {"p": ("1", 1.0), "q": ("1", 0.0), "u": ("1", u0), "w": ("1", 0.0), "v": ("1", v0)}
+
+    def pick(*names: str) -> dict[str, tuple[str, float]]:
+        return {n: start[n] for n in names}
+
+    system = System()
+    system.add("source", OdeSubModel(source, ports(pick("p", "q")), solver=RK4(max_dt=1e-4)))
+    system.add("fast", OdeSubModel(fast, ports(pick("u", "w")), inputs=ports(pick("p", "q", "v")),
+                                   solver=RK4(max_dt=1e-4)))
+    # nothing the slow sub-model integrates varies faster than its communication steps
+    system.add("slow", OdeSubModel(slow, ports(pick("v")), inputs=ports(pick("w")),
+                                   solver=RK4(max_dt=1e-2)))
+    for port in ("p", "q"):
+        system.connect(f"source.{port}", f"fast.{port}")
+    system.connect("slow.v", "fast.v")
+    system.connect("fast.w", "slow.w")
+    mono = OdeSubModel(whole, ports(start))
+    names = {"source": ("p", "q"), "fast": ("u", "w"), "slow": ("v",)}
+    return system, Reference(mono, {f"{m}.{n}": n for m, ns in names.items() for n in ns})
