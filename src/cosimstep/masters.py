@@ -261,6 +261,12 @@ class _Watchdog:
         return value
 
 
+def _lists(arrays: Sequence[np.ndarray]) -> list[list]:
+    """Each array as a list of Python numbers: a system of thousands of models reads its
+    small per-model tables once per run, where NumPy's per-call cost would dominate."""
+    return [a.tolist() for a in arrays]
+
+
 class Master:
     """Executes communication steps over a compiled system."""
 
@@ -284,8 +290,8 @@ class Master:
             self.sequence += [k for k in range(n) if k not in self.sequence]
         self._deriv_order = [m.capabilities.max_input_derivative_order for m in system.models]
         # a connection without gain, offset or unit change passes values on untouched
-        self._identity = [bool((a == 1.0).all() and (b == 0.0).all())
-                          for a, b in zip(system.a, system.b)]
+        self._identity = [a == [1.0] * len(a) and b == [0.0] * len(b)
+                          for a, b in zip(_lists(system.a), _lists(system.b))]
         self._watch: _Watchdog | None = None  # set while a watched run is under way
         self._dy0: np.ndarray | None = None
         self.correct_start = False  # set by a fixed-step run: see :meth:`step`
@@ -293,10 +299,10 @@ class Master:
         self.predicted = self._predicted_columns()
         self.consumed = np.zeros(system.n_outputs, dtype=bool)  # outputs some model reads
         self.held = np.zeros(system.n_outputs, dtype=bool)  # read by a hold-only receiver
-        for k, src in enumerate(system.src):
-            self.consumed[np.asarray(src, dtype=int)] = True
-            if self._deriv_order[k] == 0:
-                self.held[np.asarray(src, dtype=int)] = True
+        sources = _lists(system.src)
+        self.consumed[[j for src in sources for j in src]] = True
+        self.held[[j for k, src in enumerate(sources) if self._deriv_order[k] == 0
+                   for j in src]] = True
         # piecewise-constant outputs (Port.discrete): held over every step, never extrapolated
         self.discrete = np.array([p.discrete for m in system.models for p in m.outputs],
                                  dtype=bool)
@@ -317,14 +323,11 @@ class Master:
         """
         system = self.system
         rank = {k: i for i, k in enumerate(self.sequence)}
-        owner = np.empty(system.n_outputs, dtype=int)
-        for k, sl in enumerate(system.output_slices):
-            owner[sl] = k
+        owner = [k for k, sl in enumerate(system.output_slices) for _ in range(sl.start, sl.stop)]
+        jacobi = self.options.name == "jacobi"
         mask = np.zeros(system.n_outputs, dtype=bool)
-        for k in range(len(system.models)):
-            for j in np.asarray(system.src[k], dtype=int):
-                if self.options.name == "jacobi" or rank[owner[j]] >= rank[k]:
-                    mask[j] = True
+        mask[[j for k, src in enumerate(_lists(system.src)) for j in src
+              if jacobi or rank[owner[j]] >= rank[k]]] = True
         return mask
 
     # -- life cycle --------------------------------------------------------------------------
@@ -781,30 +784,32 @@ class _HeldKernel(_LeanKernel):
         # a row holding values no Python float passed through (an FMU's, a model's several)
         # is checked as a whole; the others' sum is checked as it is made
         self._whole_rows = False
+        # built on Python ints: a system of thousands of models builds its plan once per run,
+        # and NumPy's calls on arrays of one or two elements cost more than the lists'
+        owner_of = owner.tolist()
         for k in master.sequence:
             model = system.models[k]
-            src = np.asarray(system.src[k], dtype=int)
+            src = system.src[k].tolist()
             # 1 where model k reads a fresh value (a Gauss–Seidel source stepped before it)
-            fresh = np.array([gauss_seidel and rank[owner[j]] < rank[k] for j in src], dtype=int)
-            gather = src + m * fresh  # flat index into the table, relative to row n
+            fresh = [int(gauss_seidel and rank[owner_of[j]] < rank[k]) for j in src]
+            gather = np.array([j + m * f for j, f in zip(src, fresh)], dtype=int)  # from row n
             out = system.output_slices[k]
             raw = getattr(model, "_direct_io", lambda: None)()
-            contiguous = src.size > 0 and np.array_equal(src, np.arange(src[0], src[0]
-                                                                        + src.size))
+            contiguous = bool(src) and src == list(range(src[0], src[0] + len(src)))
             in_offset = None  # where the inputs start in the table from row n, when they are
             buffer = None     # one run of columns passed on unchanged (no gather needed)
-            if contiguous and len(set(fresh.tolist())) == 1:
-                in_offset = int(src[0]) + m * int(fresh[0])
+            if contiguous and len(set(fresh)) == 1:
+                in_offset = src[0] + m * fresh[0]
             if raw is not None:
                 if in_offset is not None and master._identity[k]:
                     in_offset *= 8  # a byte offset for the C call
                 else:
-                    in_offset, buffer = None, np.zeros(src.size)
+                    in_offset, buffer = None, np.zeros(len(src))
                 raw = (*raw, 8 * out.start, buffer,
                        buffer.ctypes.data if buffer is not None else 0)
             lo = hi = None  # the inputs' columns from row n's start, read as one slice
             if raw is None and in_offset is not None:
-                lo, hi = in_offset, in_offset + src.size
+                lo, hi = in_offset, in_offset + len(src)
             single = raw is None and out.stop - out.start == 1
             self._whole_rows |= raw is not None or out.stop - out.start > 1
             self.plan.append((k, model, raw, in_offset, lo, hi, gather, master._identity[k],

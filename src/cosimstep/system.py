@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cosimstep.errors import ConfigurationError, Problem
-from cosimstep.submodel import SubModel
+from cosimstep.submodel import Port, SubModel
 from cosimstep.units import UnitError, conversion
 
 
@@ -57,6 +57,10 @@ def _kind_mismatch(out_kind: str, in_kind: str, c: Connection) -> str:
 
 
 _CODED = ("string", "binary")  # kinds whose floats are codes (cosimstep.symbols)
+
+
+PortMaps = dict[str, tuple[dict[str, Port], dict[str, Port]]]
+"""Per model name: its outputs by name, its inputs by name."""
 
 
 def _article(word: str) -> str:
@@ -148,21 +152,19 @@ class System:
     # -- validation --------------------------------------------------------------------------
     def problems(self) -> list[Problem]:
         """Every problem in the system; an empty list means it can run."""
-        return self._problems(self._links())
+        ports = self._port_maps()
+        return self._problems(*self._expand(ports), ports)
 
-    def _problems(self, links: list[Connection]) -> list[Problem]:
-        """:meth:`problems`, given :meth:`_links` (compiling a large system needs them
-        again, and they are its costliest part)."""
-        problems: list[Problem] = []
+    def _problems(self, links: list[Connection], mismatched: list[tuple[Connection, int, int]],
+                  ports: PortMaps) -> list[Problem]:
+        """:meth:`problems`, given what :meth:`_expand` found (compiling a large system needs
+        its links again, and finding them is its costliest part)."""
+        problems = [Problem(c.label, f"arrays of different sizes: {outs} outputs, {ins} inputs",
+                            "connect arrays of equal size, or single elements (model.y[2])")
+                    for c, outs, ins in mismatched]
         fed: dict[tuple[str, str], Connection] = {}
-        for c in self.connections:
-            sizes = self._array_sizes(c)
-            if sizes is not None and sizes[0] != sizes[1]:
-                problems.append(Problem(c.label, f"arrays of different sizes: {sizes[0]} "
-                                        f"outputs, {sizes[1]} inputs", "connect arrays of "
-                                        "equal size, or single elements (model.y[2])"))
         for c in links:
-            problems.extend(self._check_connection(c, fed))
+            problems.extend(self._check_connection(c, fed, ports))
         for name, model in self.models.items():
             for port in model.inputs:
                 if (name, port.name) not in fed and port.start is None:
@@ -172,8 +174,8 @@ class System:
                         "connect an output to it or give it a start value"))
         return problems
 
-    def _check_connection(self, c: Connection,
-                          fed: dict[tuple[str, str], Connection]) -> Iterator[Problem]:
+    def _check_connection(self, c: Connection, fed: dict[tuple[str, str], Connection],
+                          maps: PortMaps) -> Iterator[Problem]:
         ends = []
         for role, address, kind in (("from", c.source, "output"), ("to", c.target, "input")):
             try:
@@ -187,9 +189,9 @@ class System:
                 yield Problem(c.label, f"`{role}` names unknown model '{model_name}'",
                               f"use one of: {known}")
                 continue
-            ports = model.outputs if kind == "output" else model.inputs
-            port = next((p for p in ports if p.name == port_name), None)
+            port = maps[model_name][kind == "input"].get(port_name)
             if port is None:
+                ports = model.outputs if kind == "output" else model.inputs
                 known = ", ".join(p.name for p in ports) or "none"
                 yield Problem(c.label, f"`{role}`: model '{model_name}' has no {kind} "
                               f"'{port_name}'", f"its {kind}s are: {known}")
@@ -222,39 +224,41 @@ class System:
     def _links(self) -> list[Connection]:
         """The connections port to port: one between two arrays (``a.y -> b.u``, ports
         ``y[1]`` … and ``u[1]`` … of equal count) stands for one per element pair."""
-        out = []
-        for c in self.connections:
-            sizes = self._array_sizes(c)
-            if sizes is None:
-                out.append(c)
-            elif sizes[0] == sizes[1]:  # (unequal sizes: reported by problems())
-                out.extend(dataclasses.replace(c, source=x, target=y)
-                           for x, y in self._array_pairs(c))
-        return out
+        return self._expand(self._port_maps())[0]
 
-    def _array_ports(self, address: str, outputs: bool) -> list[str] | None:
+    def _port_maps(self) -> PortMaps:
+        """Each model's outputs and inputs by name."""
+        return {n: ({p.name: p for p in m.outputs}, {p.name: p for p in m.inputs})
+                for n, m in self.models.items()}
+
+    def _expand(self, names: PortMaps
+                ) -> tuple[list[Connection], list[tuple[Connection, int, int]]]:
+        """:meth:`_links`, and the array connections of unequal sizes (with both sizes), each
+        connection looked at once."""
+        links, mismatched = [], []
+        for c in self.connections:
+            out = self._array_ports(c.source, True, names)
+            ins = self._array_ports(c.target, False, names) if out is not None else None
+            if out is None or ins is None:
+                links.append(c)
+            elif len(out) == len(ins):
+                links.extend(dataclasses.replace(c, source=x, target=y)
+                             for x, y in zip(out, ins))
+            else:
+                mismatched.append((c, len(out), len(ins)))
+        return links, mismatched
+
+    def _array_ports(self, address: str, outputs: bool, names: PortMaps) -> list[str] | None:
         """``model.y[1]``, ``model.y[2]`` … when ``address`` names an array of ``model``
-        (no port of that name, but elements), else ``None``."""
-        try:
-            model_name, port = split_address(address)
-        except ValueError:
-            return None
-        model = self.models.get(model_name)
-        if model is None:
-            return None
+        (no port of that name, but elements), else ``None``; ``names``: each model's output
+        and input names."""
+        model_name, sep, port = address.partition(".")
+        if not sep or model_name not in names or port in names[model_name][not outputs]:
+            return None  # (a malformed address or an unknown model: reported as such)
+        model = self.models[model_name]
         ports = model.outputs if outputs else model.inputs
-        if any(p.name == port for p in ports):
-            return None
         elements = [f"{model_name}.{p.name}" for p in ports if p.name.startswith(port + "[")]
         return elements or None
-
-    def _array_sizes(self, c: Connection) -> tuple[int, int] | None:
-        out, ins = self._array_ports(c.source, True), self._array_ports(c.target, False)
-        return (len(out), len(ins)) if out is not None and ins is not None else None
-
-    def _array_pairs(self, c: Connection) -> list[tuple[str, str]]:
-        out, ins = self._array_ports(c.source, True), self._array_ports(c.target, False)
-        return list(zip(out or [], ins or []))
 
     def _port_graph(self, links: list[Connection] | None = None) -> dict[str, set[str]]:
         """Dependencies at one instant: an input depends on its source; a feedthrough output on
@@ -277,8 +281,6 @@ class System:
         """The feedthrough models to settle, in dependency order: one model alone, or the
         models of an algebraic loop together (strongly connected components of the port
         ``graph``, condensed and sorted topologically)."""
-        if not any(m.capabilities.feedthrough for m in self.models.values()):
-            return []  # nothing to settle (and the sort is most of a large system's compile)
         index = {name: k for k, name in enumerate(names)}
         of = {node: i for i, c in enumerate(components) for node in c}
         condensed: dict[int, set[int]] = {i: set() for i in range(len(components))}
@@ -303,8 +305,9 @@ class System:
     # -- compilation -------------------------------------------------------------------------
     def compile(self) -> CompiledSystem:
         """Validate and build the index tables for a master."""
-        links = self._links()
-        problems = self._problems(links)
+        ports = self._port_maps()
+        links, mismatched = self._expand(ports)
+        problems = self._problems(links, mismatched, ports)
         if problems:
             raise ConfigurationError(problems)
         names = list(self.models)
@@ -330,20 +333,29 @@ class System:
                     gb[j] = float(port.start)  # validated: unconnected inputs have a start
                     continue
                 out_model, out_port = split_address(c.source)
-                unit = next(p.unit for p in self.models[out_model].outputs if p.name == out_port)
-                scale, shift = conversion(unit, port.unit)
+                scale, shift = conversion(ports[out_model][0][out_port].unit, port.unit)
                 s[j] = global_index[c.source]
                 ga[j] = c.gain * scale
                 gb[j] = c.gain * shift + c.offset
             src.append(s)
             a.append(ga)
             b.append(gb)
+        blocks, loops = self._feedthrough_blocks(names, links)
+        order = [k for b in blocks for k in b]
+        return CompiledSystem(names, models, slices, out_names, out_units, src, a, b, order,
+                              loops)
+
+    def _feedthrough_blocks(self, names: list[str], links: list[Connection]
+                            ) -> tuple[list[tuple[int, ...]], list[tuple[int, ...]]]:
+        """The feedthrough models in the order to settle them (:meth:`_settle_blocks`) and the
+        blocks among them that are algebraic loops. Without feedthrough there is neither, and
+        no graph to build: every edge then runs from an input to an output, so no cycle."""
+        if not any(m.capabilities.feedthrough for m in self.models.values()):
+            return [], []
         graph = self._port_graph(links)
         components = _components(graph)
         blocks = self._settle_blocks(names, graph, components)
         loop_ports = _loop_ports(components)
         loops = [b for b in blocks if len(b) > 1 or any(
             p.partition(".")[0] == names[b[0]] for c in loop_ports for p in c)]
-        order = [k for b in blocks for k in b]
-        return CompiledSystem(names, models, slices, out_names, out_units, src, a, b, order,
-                              loops)
+        return blocks, loops
