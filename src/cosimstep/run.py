@@ -132,14 +132,20 @@ class Synchronous(Scheme):
         self._resume_from: Any = None
         self.fired: list[Event] = []
         self.max_events = MAX_EVENTS
-        self.state_events = [k for k, m in enumerate(compiled.models)
-                             if isinstance(m, DiscreteEventModel)
-                             and type(m).indicator is not DiscreteEventModel.indicator]
-        # continuous sub-models with discrete outputs: a change of one is an event too
-        self.changing = {k: [sl.start + i for i, p in enumerate(m.outputs) if p.discrete]
-                         for k, (m, sl) in enumerate(zip(compiled.models, compiled.output_slices))
-                         if not isinstance(m, DiscreteEventModel)
-                         and any(p.discrete for p in m.outputs)}
+        discrete = [k for k, m in enumerate(compiled.models) if isinstance(m, DiscreteEventModel)]
+        self.state_events = [k for k in discrete if type(compiled.models[k]).indicator
+                             is not DiscreteEventModel.indicator]
+        # continuous sub-models with discrete outputs: a change of one is an event too (the
+        # master's table of discrete outputs spares a large system a look at every port)
+        self.changing: dict[int, list[int]] = {}
+        columns = np.flatnonzero(self.runner.discrete).tolist()
+        if columns:
+            owner = np.repeat(np.arange(len(compiled.models)),
+                              [sl.stop - sl.start for sl in compiled.output_slices]).tolist()
+            event_models = set(discrete)
+            for j in columns:
+                if owner[j] not in event_models:
+                    self.changing.setdefault(owner[j], []).append(j)
         self._discrete_cols = np.array(sorted(j for c in self.changing.values() for j in c),
                                        dtype=int)
 
