@@ -296,10 +296,10 @@ class Master:
         self._dy0: np.ndarray | None = None
         self.correct_start = False  # set by a fixed-step run: see :meth:`step`
         self._restorable, self._integrating = _start_facts(system)
-        self.predicted = self._predicted_columns()
+        sources = _lists(system.src)
+        self.predicted = self._predicted_columns(sources)
         self.consumed = np.zeros(system.n_outputs, dtype=bool)  # outputs some model reads
         self.held = np.zeros(system.n_outputs, dtype=bool)  # read by a hold-only receiver
-        sources = _lists(system.src)
         self.consumed[[j for src in sources for j in src]] = True
         self.held[[j for k, src in enumerate(sources) if self._deriv_order[k] == 0
                    for j in src]] = True
@@ -315,18 +315,19 @@ class Master:
         # the values iterated on (strong coupling): those some receiver takes extrapolated
         self._unknowns = self.predicted & ~self.discrete
 
-    def _predicted_columns(self) -> np.ndarray:
+    def _predicted_columns(self, sources: list[list[int]]) -> np.ndarray:
         """Outputs that some receiver uses *extrapolated* over a step (not yet computed).
 
         Under Jacobi that is every consumed output; under Gauss–Seidel only outputs of models that
         step after (or are) a receiver — the others are interpolated through their fresh values.
+        ``sources``: each model's source columns.
         """
         system = self.system
         rank = {k: i for i, k in enumerate(self.sequence)}
         owner = [k for k, sl in enumerate(system.output_slices) for _ in range(sl.start, sl.stop)]
         jacobi = self.options.name == "jacobi"
         mask = np.zeros(system.n_outputs, dtype=bool)
-        mask[[j for k, src in enumerate(_lists(system.src)) for j in src
+        mask[[j for k, src in enumerate(sources) for j in src
               if jacobi or rank[owner[j]] >= rank[k]]] = True
         return mask
 
@@ -792,7 +793,6 @@ class _HeldKernel(_LeanKernel):
             src = system.src[k].tolist()
             # 1 where model k reads a fresh value (a Gauss–Seidel source stepped before it)
             fresh = [int(gauss_seidel and rank[owner_of[j]] < rank[k]) for j in src]
-            gather = np.array([j + m * f for j, f in zip(src, fresh)], dtype=int)  # from row n
             out = system.output_slices[k]
             raw = getattr(model, "_direct_io", lambda: None)()
             contiguous = bool(src) and src == list(range(src[0], src[0] + len(src)))
@@ -810,6 +810,9 @@ class _HeldKernel(_LeanKernel):
             lo = hi = None  # the inputs' columns from row n's start, read as one slice
             if raw is None and in_offset is not None:
                 lo, hi = in_offset, in_offset + len(src)
+            gather = None  # flat indices of the inputs from row n, where not read as a block
+            if in_offset is None or (raw is None and lo is None):
+                gather = np.array([j + m * f for j, f in zip(src, fresh)], dtype=int)
             single = raw is None and out.stop - out.start == 1
             self._whole_rows |= raw is not None or out.stop - out.start > 1
             self.plan.append((k, model, raw, in_offset, lo, hi, gather, master._identity[k],

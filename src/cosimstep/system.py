@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import graphlib
+import itertools
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -322,24 +323,26 @@ class System:
                 out_units.append(port.unit)
                 offset += 1
         by_target = {c.target: c for c in links}
-        src, a, b = [], [], []
+        # every model's input table as a view into one array for all (a system of thousands of
+        # models would otherwise spend most of its compile allocating arrays of one element)
+        s_all, a_all, b_all, bounds = [], [], [], [0]
         for name, model in zip(names, models):
-            s = np.zeros(len(model.inputs), dtype=int)
-            ga = np.zeros(len(model.inputs))
-            gb = np.zeros(len(model.inputs))
-            for j, port in enumerate(model.inputs):
+            for port in model.inputs:
                 c = by_target.get(f"{name}.{port.name}")
-                if c is None:
-                    gb[j] = float(port.start)  # validated: unconnected inputs have a start
+                if c is None:  # validated: unconnected inputs have a start value
+                    s_all.append(0)
+                    a_all.append(0.0)
+                    b_all.append(float(port.start))
                     continue
                 out_model, out_port = split_address(c.source)
                 scale, shift = conversion(ports[out_model][0][out_port].unit, port.unit)
-                s[j] = global_index[c.source]
-                ga[j] = c.gain * scale
-                gb[j] = c.gain * shift + c.offset
-            src.append(s)
-            a.append(ga)
-            b.append(gb)
+                s_all.append(global_index[c.source])
+                a_all.append(c.gain * scale)
+                b_all.append(c.gain * shift + c.offset)
+            bounds.append(len(s_all))
+        tables = (np.array(s_all, dtype=int), np.array(a_all, dtype=float),
+                  np.array(b_all, dtype=float))
+        src, a, b = ([t[i:j] for i, j in itertools.pairwise(bounds)] for t in tables)
         blocks, loops = self._feedthrough_blocks(names, links)
         order = [k for b in blocks for k in b]
         return CompiledSystem(names, models, slices, out_names, out_units, src, a, b, order,
