@@ -290,8 +290,8 @@ class Master:
             self.sequence += [k for k in range(n) if k not in self.sequence]
         self._deriv_order = [m.capabilities.max_input_derivative_order for m in system.models]
         # a connection without gain, offset or unit change passes values on untouched
-        self._identity = [a == [1.0] * len(a) and b == [0.0] * len(b)
-                          for a, b in zip(_lists(system.a), _lists(system.b))]
+        self._identity = [a.tolist() == [1.0] * len(a) and b.tolist() == [0.0] * len(b)
+                          for a, b in zip(system.a, system.b)]
         self._watch: _Watchdog | None = None  # set while a watched run is under way
         self._dy0: np.ndarray | None = None
         self.correct_start = False  # set by a fixed-step run: see :meth:`step`

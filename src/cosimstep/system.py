@@ -60,8 +60,9 @@ def _kind_mismatch(out_kind: str, in_kind: str, c: Connection) -> str:
 _CODED = ("string", "binary")  # kinds whose floats are codes (cosimstep.symbols)
 
 
-PortMaps = dict[str, tuple[dict[str, Port], dict[str, Port]]]
-"""Per model name: its outputs by name, its inputs by name."""
+PortMaps = tuple[dict[str, Port], dict[str, Port]]
+"""Every output, and every input, by its address ``model.port`` (two flat dicts: a system of
+thousands of models would otherwise make a dict or two per model on every check)."""
 
 
 def _plain_link(c: Connection, fed: dict[tuple[str, str], Connection], maps: PortMaps) -> bool:
@@ -69,12 +70,8 @@ def _plain_link(c: Connection, fed: dict[tuple[str, str], Connection], maps: Por
     input of the same unit, both ends known, the input not fed yet — which has no problem to
     report; False leaves everything to the full check. A system of thousands of connections
     is checked in about half the time."""
-    out_model, _, out_name = c.source.partition(".")
+    out, into = maps[0].get(c.source), maps[1].get(c.target)
     in_model, _, in_name = c.target.partition(".")
-    out_ports, in_ports = maps.get(out_model), maps.get(in_model)
-    if out_ports is None or in_ports is None:
-        return False
-    out, into = out_ports[0].get(out_name), in_ports[1].get(in_name)
     key = (in_model, in_name)
     if (out is None or into is None or key in fed or out.kind != "real" or into.kind != "real"
             or out.unit != into.unit):
@@ -210,7 +207,7 @@ class System:
                 yield Problem(c.label, f"`{role}` names unknown model '{model_name}'",
                               f"use one of: {known}")
                 continue
-            port = maps[model_name][kind == "input"].get(port_name)
+            port = maps[kind == "input"].get(address)
             if port is None:
                 ports = model.outputs if kind == "output" else model.inputs
                 known = ", ".join(p.name for p in ports) or "none"
@@ -248,9 +245,9 @@ class System:
         return self._expand(self._port_maps())[0]
 
     def _port_maps(self) -> PortMaps:
-        """Each model's outputs and inputs by name."""
-        return {n: ({p.name: p for p in m.outputs}, {p.name: p for p in m.inputs})
-                for n, m in self.models.items()}
+        """Every output and every input by its address."""
+        return ({f"{n}.{p.name}": p for n, m in self.models.items() for p in m.outputs},
+                {f"{n}.{p.name}": p for n, m in self.models.items() for p in m.inputs})
 
     def _expand(self, names: PortMaps
                 ) -> tuple[list[Connection], list[tuple[Connection, int, int]]]:
@@ -274,7 +271,7 @@ class System:
         (no port of that name, but elements), else ``None``; ``names``: each model's output
         and input names."""
         model_name, sep, port = address.partition(".")
-        if not sep or model_name not in names or port in names[model_name][not outputs]:
+        if not sep or address in names[not outputs] or model_name not in self.models:
             return None  # (a malformed address or an unknown model: reported as such)
         model = self.models[model_name]
         ports = model.outputs if outputs else model.inputs
@@ -354,8 +351,7 @@ class System:
                     a_all.append(0.0)
                     b_all.append(float(port.start))
                     continue
-                out_model, out_port = split_address(c.source)
-                scale, shift = conversion(ports[out_model][0][out_port].unit, port.unit)
+                scale, shift = conversion(ports[0][c.source].unit, port.unit)
                 s_all.append(global_index[c.source])
                 a_all.append(c.gain * scale)
                 b_all.append(c.gain * shift + c.offset)
