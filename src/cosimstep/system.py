@@ -73,8 +73,10 @@ def _plain_link(c: Connection, fed: dict[tuple[str, str], Connection], maps: Por
     out, into = maps[0].get(c.source), maps[1].get(c.target)
     in_model, _, in_name = c.target.partition(".")
     key = (in_model, in_name)
-    if (out is None or into is None or key in fed or out.kind != "real" or into.kind != "real"
-            or out.unit != into.unit):
+    # the names as split_address reads them (a key alone could join a dotted model name)
+    if (out is None or into is None or into.name != in_name or not in_model
+            or c.source.partition(".")[2] != out.name or not c.source.partition(".")[0]
+            or key in fed or out.kind != "real" or into.kind != "real" or out.unit != into.unit):
         return False
     fed[key] = c
     return True
@@ -176,9 +178,10 @@ class System:
                   ports: PortMaps) -> list[Problem]:
         """:meth:`problems`, given what :meth:`_expand` found (compiling a large system needs
         its links again, and finding them is its costliest part)."""
-        problems = [Problem(c.label, f"arrays of different sizes: {outs} outputs, {ins} inputs",
-                            "connect arrays of equal size, or single elements (model.y[2])")
-                    for c, outs, ins in mismatched]
+        problems = self._duplicate_ports(ports)
+        problems += [Problem(c.label, f"arrays of different sizes: {outs} outputs, {ins} inputs",
+                             "connect arrays of equal size, or single elements (model.y[2])")
+                     for c, outs, ins in mismatched]
         fed: dict[tuple[str, str], Connection] = {}
         for c in links:
             if not _plain_link(c, fed, ports):
@@ -190,6 +193,23 @@ class System:
                         self.origins[name],
                         f"input '{name}.{port.name}' is not connected and has no start value",
                         "connect an output to it or give it a start value"))
+        return problems
+
+    def _duplicate_ports(self, maps: PortMaps) -> list[Problem]:
+        """A port name declared twice by one model: a connection could not say which it means.
+        (Counted against the maps first, which hold each address once.)"""
+        declared = [len(m.outputs) for m in self.models.values()], \
+            [len(m.inputs) for m in self.models.values()]
+        if len(maps[0]) == sum(declared[0]) and len(maps[1]) == sum(declared[1]):
+            return []
+        problems = []
+        for name, model in self.models.items():
+            for kind, ports in (("output", model.outputs), ("input", model.inputs)):
+                names = [p.name for p in ports]
+                for twice in sorted({n for n in names if names.count(n) > 1}):
+                    problems.append(Problem(self.origins[name], f"model '{name}' declares "
+                                            f"{kind} '{twice}' more than once",
+                                            f"give every {kind} of a model its own name"))
         return problems
 
     def _check_connection(self, c: Connection, fed: dict[tuple[str, str], Connection],
@@ -208,7 +228,7 @@ class System:
                               f"use one of: {known}")
                 continue
             port = maps[kind == "input"].get(address)
-            if port is None:
+            if port is None or port.name != port_name:  # (a key could join a dotted name)
                 ports = model.outputs if kind == "output" else model.inputs
                 known = ", ".join(p.name for p in ports) or "none"
                 yield Problem(c.label, f"`{role}`: model '{model_name}' has no {kind} "
@@ -271,7 +291,8 @@ class System:
         (no port of that name, but elements), else ``None``; ``names``: each model's output
         and input names."""
         model_name, sep, port = address.partition(".")
-        if not sep or address in names[not outputs] or model_name not in self.models:
+        if not (sep and model_name and port) or address in names[not outputs] \
+                or model_name not in self.models:
             return None  # (a malformed address or an unknown model: reported as such)
         model = self.models[model_name]
         ports = model.outputs if outputs else model.inputs

@@ -38,6 +38,25 @@ def test_all_problems_reported_together():
     assert len(info.value.problems) == 6
 
 
+def test_malformed_addresses_and_ports_declared_twice_are_reported():
+    """The quick path for plain connections must not accept what the full check refuses."""
+    s = System()
+    twice = Integrator(unit="m")
+    twice.outputs = (Port("x", "m"), Port("x", "s"))  # one name, two ports
+    s.add("a", Integrator()).add("b", Integrator()).add("twice", twice)
+    s.connect("a.", "b.u")
+    s.connect(".x", "b.u")
+    s.connect("a", "b.u")
+    s.connect("twice.x", "a.u")
+    text = [str(p) for p in s.problems()]
+    for address in ("'a.'", "'.x'", "'a'"):
+        assert sum(f"`from` {address} is not of the form model.port" in t for t in text) == 1
+    assert any("model 'twice' declares output 'x' more than once" in t for t in text)
+    # a well-formed plain connection between two real ports of one unit has nothing to report
+    ok = System().add("a", Integrator()).add("b", Integrator()).connect("a.x", "b.u")
+    assert ok.problems() == []
+
+
 def test_unit_conversion_gain_and_offset():
     """rad -> deg conversion, then gain and offset, reach the receiver."""
     s = System()
