@@ -232,14 +232,7 @@ def summary(problems: list[str], masters: list[str], adaptive: list[dict]) -> li
             total += bad + failed
             cells += len(rows)
             rng = f"{min(ratios):.2g} – {max(ratios):.2g}" if ratios else "—"
-            cols = []
-            for key, label in (("estimate", "sum"), ("rerun", "re-run"),
-                               ("richardson", "companion")):
-                est = [r[key] / r["err"] for r in rows
-                       if _ok(r) and r.get(key) is not None and r["err"] > 0]
-                estimates[label][0] += sum(1 for x in est if not 0.2 <= x <= 5.0)
-                estimates[label][1] += len(est)
-                cols.append(f"{min(est):.2g} – {max(est):.2g}" if est else "—")
+            cols = _estimate_ranges(rows, estimates)
             out.append(f"| {p} | {m} | {bad + failed} of {len(rows)} | {failed} | {rng} | "
                        f"{' | '.join(cols)} |")
     out += ["", f"**Cells outside [{lo:g}, {hi:g}]: {total} of {cells}.** Own estimate / "
@@ -247,6 +240,19 @@ def summary(problems: list[str], masters: list[str], adaptive: list[dict]) -> li
             + "; ".join(f"{k} {v[0]} of {v[1]}" for k, v in estimates.items()) + " (re-run: "
             "from the run at 10× tol, so none at the loosest tol; companion: `pc` only)."]
     return out
+
+
+def _estimate_ranges(rows: list[dict], estimates: dict[str, list[int]]) -> list[str]:
+    """The range of each own estimate / measured error over ``rows``, counting those outside
+    [0.2, 5] into ``estimates`` ([outside, cells] per estimate)."""
+    cols = []
+    for key, label in (("estimate", "sum"), ("rerun", "re-run"), ("richardson", "companion")):
+        est = [r[key] / r["err"] for r in rows
+               if _ok(r) and r.get(key) is not None and r["err"] > 0]
+        estimates[label][0] += sum(1 for x in est if not 0.2 <= x <= 5.0)
+        estimates[label][1] += len(est)
+        cols.append(f"{min(est):.2g} – {max(est):.2g}" if est else "—")
+    return cols
 
 
 def separated_scales(problems: list[str], adaptive: list[dict]) -> list[str]:
@@ -266,19 +272,23 @@ def separated_scales(problems: list[str], adaptive: list[dict]) -> list[str]:
            "|---|---|---|---|---|---|---|---|"]
     for name in names:
         line = [r for r in adaptive if r["problem"] == name and r["kind"] == "pc"]
-        best = min((r for r in line if _ok(r)), key=lambda r: r["err"], default=None)
-        for r in sorted((r for r in adaptive if r["problem"] == name
-                         and r["kind"] == "multirate" and _ok(r)), key=lambda r: -r["tol"]):
-            per = r["per_model"]
-            equal, bound = calls_at(line, r["err"]), ""
-            if math.isnan(equal) and best is not None and r["err"] < best["err"]:
-                equal, bound = best["calls"], ">"
-            ratio = r["calls"] / equal if math.isfinite(equal) else math.nan
-            out.append(f"| {name} | {r['tol']:g} | {' / '.join(str(c) for c in per.values())} "
-                       f"| {min(per.values()) / max(per.values()):.3f} | {r['calls']} | "
-                       f"{_g(r['err'])} | {bound}{_g(equal, '.0f')} | "
-                       f"{'<' if bound else ''}{_g(ratio, '.2f')} |")
+        out += [_separated_row(name, r, line) for r in sorted(
+            (r for r in adaptive if r["problem"] == name and r["kind"] == "multirate"
+             and _ok(r)), key=lambda r: -r["tol"])]
     return out
+
+
+def _separated_row(name: str, r: dict, line: list[dict]) -> str:
+    """One multi-rate run ``r`` against `pc`'s runs ``line`` at equal error."""
+    best = min((p for p in line if _ok(p)), key=lambda p: p["err"], default=None)
+    per = r["per_model"]
+    equal, bound = calls_at(line, r["err"]), ""
+    if math.isnan(equal) and best is not None and r["err"] < best["err"]:
+        equal, bound = best["calls"], ">"
+    ratio = r["calls"] / equal if math.isfinite(equal) else math.nan
+    return (f"| {name} | {r['tol']:g} | {' / '.join(str(c) for c in per.values())} "
+            f"| {min(per.values()) / max(per.values()):.3f} | {r['calls']} | {_g(r['err'])} | "
+            f"{bound}{_g(equal, '.0f')} | {'<' if bound else ''}{_g(ratio, '.2f')} |")
 
 
 FIGURE = ROOT / "docs" / "figures" / "suite_estimates.png"
@@ -335,50 +345,9 @@ def _option(text: str) -> tuple[str, object]:
         return key.strip(), value.strip()
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--problems", help="comma-separated names (default: all)")
-    ap.add_argument("--tols", help="comma-separated tolerances (default: 1e-2 … 1e-6)")
-    ap.add_argument("--masters", help="comma-separated: pc, multirate (default: both)")
-    ap.add_argument("--no-write", action="store_true", help="do not touch docs/benchmarks.md")
-    ap.add_argument("--opt", action="append", default=[], metavar="KEY=VALUE",
-                    help="a controller option for the adaptive runs (e.g. predictive=true); "
-                         "implies --no-write")
-    ap.add_argument("--results", type=Path, default=RESULTS, help="where the raw results go")
-    ap.add_argument("--figure", action="store_true",
-                    help=f"only draw {FIGURE.relative_to(ROOT)} from the results file")
-    args = ap.parse_args(argv)
-    if args.figure:
-        estimate_figure(json.loads(args.results.read_text())["adaptive"])
-        return
-    problems = args.problems.split(",") if args.problems else list(suite.PROBLEMS)
-    for p in problems:
-        suite.get(p)  # a KeyError listing the names
-    tols = [float(t) for t in args.tols.split(",")] if args.tols else TOLS
-    masters = args.masters.split(",") if args.masters else list(MASTERS)
-    unknown = [m for m in masters if m not in MASTERS]
-    if unknown:
-        ap.error(f"unknown master(s) {unknown}; choose from {', '.join(MASTERS)}")
-    options = dict(_option(o) for o in args.opt)
-    subset = bool(args.problems or args.tols or args.masters or options)
-    started = time.perf_counter()
-    # one looser tolerance than asked, only to pair with the loosest for the re-run estimate
-    pairing = [max(tols) * FACTOR]
-    jobs = [{"problem": p, "kind": m, "tol": tol, "options": options} for p in problems
-            for tol in [*tols, *pairing] for m in masters]
-    with Pool(2) as pool:
-        adaptive = _collect(pool, jobs)
-        pair_estimates(adaptive)
-        adaptive = [r for r in adaptive if r["tol"] in tols]
-        for r in adaptive:
-            r.pop("points", None)
-        lines = fixed_lines(pool, problems, adaptive)
-    minutes = (time.perf_counter() - started) / 60
-    args.results.parent.mkdir(parents=True, exist_ok=True)
-    args.results.write_text(json.dumps({"date": str(date.today()), "tols": tols,
-                                        "masters": masters, "options": options,
-                                   "problems": problems, "adaptive": adaptive, "fixed": lines},
-                                  indent=1, default=float))
+def document(problems: list[str], masters: list[str], adaptive: list[dict], lines: list[dict],
+             minutes: float) -> str:
+    """The section of docs/benchmarks.md, between the suite markers."""
     out = [MARK_BEGIN, "", "## Benchmark suite (cosimstep.suite)", "",
            f"Measured {date.today()} on {platform.machine()}, Python "
            f"{platform.python_version()}, {minutes:.0f} min on 2 workers. Masters: *pc* = "
@@ -401,7 +370,62 @@ def main(argv: list[str] | None = None) -> None:
         out += problem_section(p, [r for r in adaptive if r["problem"] == p],
                                [r for r in lines if r["problem"] == p])
     out.append(MARK_END)
-    text = "\n".join(out)
+    return "\n".join(out)
+
+
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
+    """The command line, with ``problems``, ``tols`` and ``masters`` parsed into lists."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--problems", help="comma-separated names (default: all)")
+    ap.add_argument("--tols", help="comma-separated tolerances (default: 1e-2 … 1e-6)")
+    ap.add_argument("--masters", help="comma-separated: pc, multirate (default: both)")
+    ap.add_argument("--no-write", action="store_true", help="do not touch docs/benchmarks.md")
+    ap.add_argument("--opt", action="append", default=[], metavar="KEY=VALUE",
+                    help="a controller option for the adaptive runs (e.g. predictive=true); "
+                         "implies --no-write")
+    ap.add_argument("--results", type=Path, default=RESULTS, help="where the raw results go")
+    ap.add_argument("--figure", action="store_true",
+                    help=f"only draw {FIGURE.relative_to(ROOT)} from the results file")
+    args = ap.parse_args(argv)
+    args.subset = bool(args.problems or args.tols or args.masters or args.opt)
+    args.problems = args.problems.split(",") if args.problems else list(suite.PROBLEMS)
+    for p in args.problems:
+        suite.get(p)  # a KeyError listing the names
+    args.tols = [float(t) for t in args.tols.split(",")] if args.tols else TOLS
+    args.masters = args.masters.split(",") if args.masters else list(MASTERS)
+    unknown = [m for m in args.masters if m not in MASTERS]
+    if unknown:
+        ap.error(f"unknown master(s) {unknown}; choose from {', '.join(MASTERS)}")
+    return args
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = _arguments(argv)
+    if args.figure:
+        estimate_figure(json.loads(args.results.read_text())["adaptive"])
+        return
+    problems, tols, masters = args.problems, args.tols, args.masters
+    options = dict(_option(o) for o in args.opt)
+    subset = args.subset
+    started = time.perf_counter()
+    # one looser tolerance than asked, only to pair with the loosest for the re-run estimate
+    pairing = [max(tols) * FACTOR]
+    jobs = [{"problem": p, "kind": m, "tol": tol, "options": options} for p in problems
+            for tol in [*tols, *pairing] for m in masters]
+    with Pool(2) as pool:
+        adaptive = _collect(pool, jobs)
+        pair_estimates(adaptive)
+        adaptive = [r for r in adaptive if r["tol"] in tols]
+        for r in adaptive:
+            r.pop("points", None)
+        lines = fixed_lines(pool, problems, adaptive)
+    minutes = (time.perf_counter() - started) / 60
+    args.results.parent.mkdir(parents=True, exist_ok=True)
+    args.results.write_text(json.dumps({"date": str(date.today()), "tols": tols,
+                                        "masters": masters, "options": options,
+                                   "problems": problems, "adaptive": adaptive, "fixed": lines},
+                                  indent=1, default=float))
+    text = document(problems, masters, adaptive, lines, minutes)
     if args.no_write or subset:
         print(text)
     else:

@@ -261,6 +261,13 @@ class _Watchdog:
         return value
 
 
+def _columns(n: int, sources: list[list[int]]) -> np.ndarray:
+    """A mask of ``n`` columns, true for those in any of ``sources``."""
+    mask = np.zeros(n, dtype=bool)
+    mask[[j for src in sources for j in src]] = True
+    return mask
+
+
 def _lists(arrays: Sequence[np.ndarray]) -> list[list]:
     """Each array as a list of Python numbers: a system of thousands of models reads its
     small per-model tables once per run, where NumPy's per-call cost would dominate."""
@@ -298,11 +305,10 @@ class Master:
         self._restorable, self._integrating = _start_facts(system)
         sources = _lists(system.src)
         self.predicted = self._predicted_columns(sources)
-        self.consumed = np.zeros(system.n_outputs, dtype=bool)  # outputs some model reads
-        self.held = np.zeros(system.n_outputs, dtype=bool)  # read by a hold-only receiver
-        self.consumed[[j for src in sources for j in src]] = True
-        self.held[[j for k, src in enumerate(sources) if self._deriv_order[k] == 0
-                   for j in src]] = True
+        # outputs some model reads, and those read by a hold-only receiver
+        self.consumed = _columns(system.n_outputs, sources)
+        self.held = _columns(system.n_outputs, [src for k, src in enumerate(sources)
+                                                if self._deriv_order[k] == 0])
         # piecewise-constant outputs (Port.discrete): held over every step, never extrapolated
         self.discrete = np.array([p.discrete for m in system.models for p in m.outputs],
                                  dtype=bool)
@@ -789,35 +795,40 @@ class _HeldKernel(_LeanKernel):
         # and NumPy's calls on arrays of one or two elements cost more than the lists'
         owner_of = owner.tolist()
         for k in master.sequence:
-            model = system.models[k]
-            src = system.src[k].tolist()
             # 1 where model k reads a fresh value (a Gauss–Seidel source stepped before it)
-            fresh = [int(gauss_seidel and rank[owner_of[j]] < rank[k]) for j in src]
-            out = system.output_slices[k]
-            raw = getattr(model, "_direct_io", lambda: None)()
-            contiguous = bool(src) and src == list(range(src[0], src[0] + len(src)))
-            in_offset = None  # where the inputs start in the table from row n, when they are
-            buffer = None     # one run of columns passed on unchanged (no gather needed)
-            if contiguous and len(set(fresh)) == 1:
-                in_offset = src[0] + m * fresh[0]
-            if raw is not None:
-                if in_offset is not None and master._identity[k]:
-                    in_offset *= 8  # a byte offset for the C call
-                else:
-                    in_offset, buffer = None, np.zeros(len(src))
-                raw = (*raw, 8 * out.start, buffer,
-                       buffer.ctypes.data if buffer is not None else 0)
-            lo = hi = None  # the inputs' columns from row n's start, read as one slice
-            if raw is None and in_offset is not None:
-                lo, hi = in_offset, in_offset + len(src)
-            gather = None  # flat indices of the inputs from row n, where not read as a block
-            if in_offset is None or (raw is None and lo is None):
-                gather = np.array([j + m * f for j, f in zip(src, fresh)], dtype=int)
-            single = raw is None and out.stop - out.start == 1
-            self._whole_rows |= raw is not None or out.stop - out.start > 1
-            self.plan.append((k, model, raw, in_offset, lo, hi, gather, master._identity[k],
-                              system.a[k], system.b[k], m + out.start, m + out.stop,
-                              (out.stop - out.start,), single))
+            fresh = [int(gauss_seidel and rank[owner_of[j]] < rank[k])
+                     for j in system.src[k].tolist()]
+            self.plan.append(self._entry(k, fresh))
+
+    def _entry(self, k: int, fresh: list[int]) -> tuple:
+        """Model ``k``'s entry of :attr:`plan`; ``fresh``: 1 for each input read from row
+        ``n + 1``."""
+        master, system, m = self.master, self.master.system, self.m
+        model = system.models[k]
+        src = system.src[k].tolist()
+        out = system.output_slices[k]
+        raw = getattr(model, "_direct_io", lambda: None)()
+        contiguous = bool(src) and src == list(range(src[0], src[0] + len(src)))
+        in_offset = None  # where the inputs start in the table from row n, when they are
+        buffer = None     # one run of columns passed on unchanged (no gather needed)
+        if contiguous and len(set(fresh)) == 1:
+            in_offset = src[0] + m * fresh[0]
+        if raw is not None:
+            if in_offset is not None and master._identity[k]:
+                in_offset *= 8  # a byte offset for the C call
+            else:
+                in_offset, buffer = None, np.zeros(len(src))
+            raw = (*raw, 8 * out.start, buffer, buffer.ctypes.data if buffer is not None else 0)
+        lo = hi = None  # the inputs' columns from row n's start, read as one slice
+        if raw is None and in_offset is not None:
+            lo, hi = in_offset, in_offset + len(src)
+        gather = None  # flat indices of the inputs from row n, where not read as a block
+        if in_offset is None:
+            gather = np.array([j + m * f for j, f in zip(src, fresh)], dtype=int)
+        single = raw is None and out.stop - out.start == 1
+        self._whole_rows |= raw is not None or out.stop - out.start > 1
+        return (k, model, raw, in_offset, lo, hi, gather, master._identity[k], system.a[k],
+                system.b[k], m + out.start, m + out.stop, (out.stop - out.start,), single)
 
     def step(self, t: float, h: float, n: int, flat: np.ndarray, base: int) -> None:
         """Step every model from row ``n`` to row ``n + 1`` of the table.
