@@ -288,8 +288,8 @@ class System:
 
     def _array_ports(self, address: str, outputs: bool, names: PortMaps) -> list[str] | None:
         """``model.y[1]``, ``model.y[2]`` … when ``address`` names an array of ``model``
-        (no port of that name, but elements), else ``None``; ``names``: each model's output
-        and input names."""
+        (no port of that name, but elements), else ``None``; ``names``: every port by its
+        address."""
         model_name, sep, port = address.partition(".")
         if not (sep and model_name and port) or address in names[not outputs] \
                 or model_name not in self.models:
@@ -381,7 +381,7 @@ class System:
                   np.array(b_all, dtype=float))
         src, a, b = ([t[i:j] for i, j in itertools.pairwise(bounds)] for t in tables)
         blocks, loops = self._feedthrough_blocks(names, links)
-        order = [k for b in blocks for k in b]
+        order = [k for block in blocks for k in block]
         return CompiledSystem(names, models, slices, out_names, out_units, src, a, b, order,
                               loops)
 
