@@ -372,6 +372,15 @@ def main() -> None:
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
+    report = _report(list(runs), times, inside, finals, own_inside, construction, notes, pinned)
+    write_section(ROOT / "docs" / "benchmarks.md", report, MARK_BEGIN, MARK_END)
+
+
+def _report(runs: list[str], times: dict[tuple[str, int], list[float]], inside: list[float],
+            finals: dict[str, np.ndarray], own_inside: dict[str, list[float]],
+            construction: list[float], notes: list[str], pinned: object) -> str:
+    """The docs section from the measured walls (``times`` per runner and length), the in-FMU
+    time, the final states and what could not be measured (``notes``)."""
     med = {key: statistics.median(t) for key, t in times.items()}
     fmu_us = statistics.median(inside) / STEPS * 1e6
     whole = {name: med[name, STEPS] / STEPS * 1e6 for name in runs}  # µs per step, whole run
@@ -467,7 +476,7 @@ def main() -> None:
     if notes:
         out += ["", "Not measured:", ""] + [f"- {n}" for n in notes]
     out += ["", "Run: `python benchmarks/fmu_overhead.py`.", "", MARK_END]
-    write_section(ROOT / "docs" / "benchmarks.md", "\n".join(out), MARK_BEGIN, MARK_END)
+    return "\n".join(out)
 
 
 if __name__ == "__main__":
