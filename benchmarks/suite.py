@@ -272,15 +272,16 @@ def separated_scales(problems: list[str], adaptive: list[dict]) -> list[str]:
            "|---|---|---|---|---|---|---|---|"]
     for name in names:
         line = [r for r in adaptive if r["problem"] == name and r["kind"] == "pc"]
-        out += [_separated_row(name, r, line) for r in sorted(
+        best = min((p for p in line if _ok(p)), key=lambda p: p["err"], default=None)
+        out += [_separated_row(name, r, line, best) for r in sorted(
             (r for r in adaptive if r["problem"] == name and r["kind"] == "multirate"
              and _ok(r)), key=lambda r: -r["tol"])]
     return out
 
 
-def _separated_row(name: str, r: dict, line: list[dict]) -> str:
-    """One multi-rate run ``r`` against `pc`'s runs ``line`` at equal error."""
-    best = min((p for p in line if _ok(p)), key=lambda p: p["err"], default=None)
+def _separated_row(name: str, r: dict, line: list[dict], best: dict | None) -> str:
+    """One multi-rate run ``r`` against `pc`'s runs ``line`` (``best``: its most accurate) at
+    equal error."""
     per = r["per_model"]
     equal, bound = calls_at(line, r["err"]), ""
     if math.isnan(equal) and best is not None and r["err"] < best["err"]:

@@ -268,12 +268,6 @@ def _columns(n: int, sources: list[list[int]]) -> np.ndarray:
     return mask
 
 
-def _lists(arrays: Sequence[np.ndarray]) -> list[list]:
-    """Each array as a list of Python numbers: a system of thousands of models reads its
-    small per-model tables once per run, where NumPy's per-call cost would dominate."""
-    return [a.tolist() for a in arrays]
-
-
 class Master:
     """Executes communication steps over a compiled system."""
 
@@ -303,7 +297,9 @@ class Master:
         self._dy0: np.ndarray | None = None
         self.correct_start = False  # set by a fixed-step run: see :meth:`step`
         self._restorable, self._integrating = _start_facts(system)
-        sources = _lists(system.src)
+        # on Python ints: NumPy's cost per call on arrays of one or two elements would
+        # dominate the set-up of a system of thousands of models
+        sources = [src.tolist() for src in system.src]
         self.predicted = self._predicted_columns(sources)
         # outputs some model reads, and those read by a hold-only receiver
         self.consumed = _columns(system.n_outputs, sources)
@@ -330,7 +326,7 @@ class Master:
         """
         system = self.system
         rank = {k: i for i, k in enumerate(self.sequence)}
-        owner = [k for k, sl in enumerate(system.output_slices) for _ in range(sl.start, sl.stop)]
+        owner = system.owners
         jacobi = self.options.name == "jacobi"
         mask = np.zeros(system.n_outputs, dtype=bool)
         mask[[j for k, src in enumerate(sources) for j in src
@@ -774,9 +770,6 @@ class _HeldKernel(_LeanKernel):
         self.names = system.names
         m = system.n_outputs
         self.m = m
-        owner = np.empty(m, dtype=int)
-        for k, sl in enumerate(system.output_slices):
-            owner[sl] = k
         rank = {k: i for i, k in enumerate(master.sequence)}
         gauss_seidel = master.options.name == "gauss-seidel"
         self.calls = [0] * len(system.models)  # added to the master's counts by :meth:`sync`
@@ -793,10 +786,10 @@ class _HeldKernel(_LeanKernel):
         self._whole_rows = False
         # built on Python ints: a system of thousands of models builds its plan once per run,
         # and NumPy's calls on arrays of one or two elements cost more than the lists'
-        owner_of = owner.tolist()
+        owner = system.owners
         for k in master.sequence:
             # 1 where model k reads a fresh value (a Gauss–Seidel source stepped before it)
-            fresh = [int(gauss_seidel and rank[owner_of[j]] < rank[k])
+            fresh = [int(gauss_seidel and rank[owner[j]] < rank[k])
                      for j in system.src[k].tolist()]
             self.plan.append(self._entry(k, fresh))
 
@@ -972,9 +965,7 @@ class _ExtrapolatingKernel(_LeanKernel):
         self.names = system.names
         self.order = p = master.options.extrapolation
         m = self.m = system.n_outputs
-        owner = np.empty(m, dtype=int)
-        for k, sl in enumerate(system.output_slices):
-            owner[sl] = k
+        owner = system.owners
         rank = {k: i for i, k in enumerate(master.sequence)}
         gauss_seidel = master.options.name == "gauss-seidel"
         weights = (np.array(midstep_weights(p, False)), np.array(midstep_weights(p, True)))

@@ -168,9 +168,7 @@ class Multirate:
             from cosimstep.interpolation import make_interpolator
 
             self.method = make_interpolator(interpolation)
-        self.owner = np.empty(system.n_outputs, dtype=int)
-        for k, sl in enumerate(system.output_slices):
-            self.owner[sl] = k
+        self.owner = np.array(system.owners, dtype=int)
         self.consumers = [sorted({k for k in range(len(system.models))
                                   if j in self._sources(k)}) for j in range(len(system.models))]
         self.tracks = [Track(k, n, _copy_policy(policy), h0,

@@ -139,13 +139,11 @@ class Synchronous(Scheme):
         # master's table of discrete outputs spares a large system a look at every port)
         self.changing: dict[int, list[int]] = {}
         columns = np.flatnonzero(self.runner.discrete).tolist()
-        if columns:
-            owner = np.repeat(np.arange(len(compiled.models)),
-                              [sl.stop - sl.start for sl in compiled.output_slices]).tolist()
-            event_models = set(discrete)
-            for j in columns:
-                if owner[j] not in event_models:
-                    self.changing.setdefault(owner[j], []).append(j)
+        event_models = set(discrete)
+        for j in columns:
+            k = compiled.owners[j]
+            if k not in event_models:
+                self.changing.setdefault(k, []).append(j)
         self._discrete_cols = np.array(sorted(j for c in self.changing.values() for j in c),
                                        dtype=int)
 

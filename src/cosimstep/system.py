@@ -65,21 +65,11 @@ PortMaps = tuple[dict[str, Port], dict[str, Port]]
 thousands of models would otherwise make a dict or two per model on every check)."""
 
 
-def _plain_link(c: Connection, fed: dict[tuple[str, str], Connection], maps: PortMaps) -> bool:
-    """Record ``c`` in ``fed`` and say True if it is the common case — real output to a real
-    input of the same unit, both ends known, the input not fed yet — which has no problem to
-    report; False leaves everything to the full check. A system of thousands of connections
-    is checked in about half the time."""
-    out, into = maps[0].get(c.source), maps[1].get(c.target)
-    in_model, _, in_name = c.target.partition(".")
-    key = (in_model, in_name)
-    # the names as split_address reads them (a key alone could join a dotted model name)
-    if (out is None or into is None or into.name != in_name or not in_model
-            or c.source.partition(".")[2] != out.name or not c.source.partition(".")[0]
-            or key in fed or out.kind != "real" or into.kind != "real" or out.unit != into.unit):
-        return False
-    fed[key] = c
-    return True
+def _names(address: str, port: Port | None) -> bool:
+    """``address`` found ``port`` and, read as :func:`split_address` reads it, names its model
+    and that port (a key alone could join a dotted model name)."""
+    model, _, name = address.partition(".")
+    return port is not None and bool(model) and name == port.name
 
 
 def _article(word: str) -> str:
@@ -134,6 +124,8 @@ class CompiledSystem:
     b: list[np.ndarray]
     feedthrough_order: list[int]
     loops: list[tuple[int, ...]] = field(default_factory=list)
+    owners: list[int] = field(default_factory=list)
+    """The model (index) each output column belongs to."""
     """Algebraic loops: the direct-feedthrough models of each, solved together at every
     communication point (:meth:`~cosimstep.masters.Master.settle`). ``feedthrough_order``
     lists every feedthrough model once, a loop's models together, in the order to settle."""
@@ -184,8 +176,7 @@ class System:
                      for c, outs, ins in mismatched]
         fed: dict[tuple[str, str], Connection] = {}
         for c in links:
-            if not _plain_link(c, fed, ports):
-                problems.extend(self._check_connection(c, fed, ports))
+            problems.extend(self._check_connection(c, fed, ports))
         for name, model in self.models.items():
             for port in model.inputs:
                 if (name, port.name) not in fed and port.start is None:
@@ -213,8 +204,41 @@ class System:
         return problems
 
     def _check_connection(self, c: Connection, fed: dict[tuple[str, str], Connection],
-                          maps: PortMaps) -> Iterator[Problem]:
-        ends = []
+                          maps: PortMaps) -> list[Problem]:
+        """What is wrong with connection ``c`` (``fed``: the inputs connected so far, to which
+        it is added). Both ends are looked up by address first, which a system of thousands of
+        connections needs; an end not found so is explained by :meth:`_address_problems`."""
+        out_port, in_port = maps[0].get(c.source), maps[1].get(c.target)
+        if out_port is None or in_port is None or not (_names(c.source, out_port)
+                                                       and _names(c.target, in_port)):
+            return list(self._address_problems(c, maps))
+        problems = []
+        key = (c.target.partition(".")[0], in_port.name)
+        if key in fed:
+            problems.append(Problem(c.label, f"input '{c.target}' already has a source "
+                                    f"({fed[key].source})", "an input takes exactly one "
+                                    "connection"))
+        else:
+            fed[key] = c
+        coded = {out_port.kind, in_port.kind} & set(_CODED)
+        try:
+            if not coded:  # text and bytes have no unit; their kinds are checked below
+                conversion(out_port.unit, in_port.unit)
+        except UnitError as exc:
+            problems.append(Problem(c.label, f"unit mismatch: {exc}", "connect ports of "
+                                    "compatible units or fix the unit declarations"))
+        mismatch = _kind_mismatch(out_port.kind, in_port.kind, c)
+        if mismatch and coded:
+            problems.append(Problem(c.label, mismatch, f"connect a {in_port.kind} output, "
+                                    "without gain, offset or rounding"))
+        elif mismatch:
+            problems.append(Problem(c.label, mismatch, "connect an output of the same kind, or "
+                                    "declare the rounding on the connection (round = true)"))
+        return problems
+
+    def _address_problems(self, c: Connection, maps: PortMaps) -> Iterator[Problem]:
+        """Why an end of ``c`` names no port: a malformed address, an unknown model, or a
+        port the model does not have."""
         for role, address, kind in (("from", c.source, "output"), ("to", c.target, "input")):
             try:
                 model_name, port_name = split_address(address)
@@ -227,37 +251,11 @@ class System:
                 yield Problem(c.label, f"`{role}` names unknown model '{model_name}'",
                               f"use one of: {known}")
                 continue
-            port = maps[kind == "input"].get(address)
-            if port is None or port.name != port_name:  # (a key could join a dotted name)
+            if not _names(address, maps[kind == "input"].get(address)):
                 ports = model.outputs if kind == "output" else model.inputs
                 known = ", ".join(p.name for p in ports) or "none"
                 yield Problem(c.label, f"`{role}`: model '{model_name}' has no {kind} "
                               f"'{port_name}'", f"its {kind}s are: {known}")
-                continue
-            ends.append((model_name, port))
-        if len(ends) != 2:
-            return
-        (_, out_port), (in_model, in_port) = ends
-        key = (in_model, in_port.name)
-        if key in fed:
-            yield Problem(c.label, f"input '{c.target}' already has a source "
-                          f"({fed[key].source})", "an input takes exactly one connection")
-        else:
-            fed[key] = c
-        coded = {out_port.kind, in_port.kind} & set(_CODED)
-        try:
-            if not coded:  # text and bytes have no unit; their kinds are checked below
-                conversion(out_port.unit, in_port.unit)
-        except UnitError as exc:
-            yield Problem(c.label, f"unit mismatch: {exc}",
-                          "connect ports of compatible units or fix the unit declarations")
-        mismatch = _kind_mismatch(out_port.kind, in_port.kind, c)
-        if mismatch and coded:
-            yield Problem(c.label, mismatch, f"connect a {in_port.kind} output, without gain, "
-                          "offset or rounding")
-        elif mismatch:
-            yield Problem(c.label, mismatch, "connect an output of the same kind, or declare "
-                          "the rounding on the connection (round = true)")
 
     def _links(self) -> list[Connection]:
         """The connections port to port: one between two arrays (``a.y -> b.u``, ports
@@ -351,7 +349,7 @@ class System:
             raise ConfigurationError(problems)
         names = list(self.models)
         models = [self.models[n] for n in names]
-        slices, out_names, out_units, offset = [], [], [], 0
+        slices, out_names, out_units, owners, offset = [], [], [], [], 0
         global_index: dict[str, int] = {}
         for name, model in zip(names, models):
             slices.append(slice(offset, offset + len(model.outputs)))
@@ -359,6 +357,7 @@ class System:
                 global_index[f"{name}.{port.name}"] = offset
                 out_names.append(f"{name}.{port.name}")
                 out_units.append(port.unit)
+                owners.append(len(slices) - 1)
                 offset += 1
         by_target = {c.target: c for c in links}
         # every model's input table as a view into one array for all (a system of thousands of
@@ -383,7 +382,7 @@ class System:
         blocks, loops = self._feedthrough_blocks(names, links)
         order = [k for block in blocks for k in block]
         return CompiledSystem(names, models, slices, out_names, out_units, src, a, b, order,
-                              loops)
+                              loops, owners)
 
     def _feedthrough_blocks(self, names: list[str], links: list[Connection]
                             ) -> tuple[list[tuple[int, ...]], list[tuple[int, ...]]]:
