@@ -23,10 +23,16 @@ RTOL = ATOL = 1e-12
 
 @dataclass
 class Reference:
-    """A monolithic ODE model plus the map ``{"cosim.output": "monolithic_state"}``."""
+    """A monolithic ODE model plus the map ``{"cosim.output": "monolithic_state"}``.
+
+    ``derived``: the model's quantities that are no state (a coupling force), each computed
+    from the states and the parameters at the time; the map may name them too, so that an
+    output the split exchanges, and the tolerance bounds, is measured like the states.
+    """
 
     model: OdeSubModel
     mapping: Mapping[str, str]
+    derived: Mapping[str, Any] = field(default_factory=dict)
     _segments: list = field(default_factory=list, repr=False)
     _span: tuple[float, float] | None = field(default=None, repr=False)
 
@@ -75,15 +81,36 @@ class Reference:
 
     def values(self, times: np.ndarray, names: list[str]) -> np.ndarray:
         """Reference values of the mapped co-simulation outputs ``names`` at ``times``."""
+        states = self._states(times)
         state_names = [p.name for p in self.model.state_ports]
-        rows = [state_names.index(self.mapping[n]) for n in names]
         out = np.empty((len(times), len(names)))
+        for j, n in enumerate(names):
+            target = self.mapping[n]
+            if target in self.derived:
+                out[:, j] = self._derived(self.derived[target], times, states)
+            else:
+                out[:, j] = states[state_names.index(target)]
+        return out
+
+    def _states(self, times: np.ndarray) -> np.ndarray:
+        """Every state at ``times`` (one row each), from the dense output of its piece."""
+        out = np.empty((len(self.model.state_ports), len(times)))
         edges = np.array([s[0] for s in self._segments[1:]])
         which = np.searchsorted(edges, times, side="right")
         for k, (_, _, dense) in enumerate(self._segments):
             mask = which == k
             if mask.any():
-                out[mask] = dense(times[mask])[rows].T
+                out[:, mask] = dense(times[mask])
+        return out
+
+    def _derived(self, quantity: Any, times: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """A derived quantity at ``times``, with the parameters in force at each (piecewise)."""
+        schedule = self.model.parameters
+        which = np.searchsorted(np.asarray(schedule.times, dtype=float), times, side="right")
+        out = np.empty(len(times))
+        for k in np.unique(which):
+            mask = which == k
+            out[mask] = quantity(states[:, mask], schedule.at(float(times[mask][0])))
         return out
 
 

@@ -159,10 +159,13 @@ def build_reference(sec: ReferenceSection, header: HeaderSection, changes: Chang
         if k not in outputs and k.partition(".")[0] not in refused:
             problems.append(Problem(f"{where}.map.{k}", "not an output of the system",
                                     "keys are model.output addresses"))
-        if v not in states:
-            problems.append(Problem(f"{where}.map.{k}", f"'{v}' is not a state of '{sec.type}'",
-                                    f"its states: {', '.join(sorted(states))}"))
-    return Reference(model, dict(sec.map))
+        if v not in states and v not in kind.derived:
+            known = f"its states: {', '.join(sorted(states))}"
+            if kind.derived:
+                known += f"; computed from them: {', '.join(sorted(kind.derived))}"
+            problems.append(Problem(f"{where}.map.{k}",
+                                    f"'{v}' is not a state of '{sec.type}'", known))
+    return Reference(model, dict(sec.map), dict(kind.derived))
 
 
 def _master(body: Any, system: System, where: str, problems: list[Problem]) -> MasterOptions:

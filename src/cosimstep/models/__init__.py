@@ -10,11 +10,16 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import partial
 
+import numpy as np
+
 from cosimstep.adapters.ode import InternalSolver, ParameterSchedule
 from cosimstep.models import bouncing, linear, oscillators, pendulum, ship, thermal
 from cosimstep.submodel import SubModel
 
 Builder = Callable[[ParameterSchedule, Mapping[str, float], InternalSolver | None], SubModel]
+Derived = Callable[[np.ndarray, Mapping[str, float]], np.ndarray]
+"""A quantity of a monolithic model that is no state: from the states (one row each, one column
+per time) and the parameters, its values at those times."""
 
 
 @dataclass(frozen=True)
@@ -29,6 +34,9 @@ class ModelKind:
     start_values: Mapping[str, float] = field(default_factory=dict)
     """The builder's own start values, by start name (where it has any): an export of the kind
     begins from these rather than from zero."""
+    derived: Mapping[str, Derived] = field(default_factory=dict)
+    """A monolithic kind's quantities that are no state but that a split exchanges (a coupling
+    force): a reference map may name them, so that every exchanged output is measured."""
 
 
 REGISTRY: dict[str, ModelKind] = {}
@@ -82,7 +90,7 @@ register(ModelKind("bouncing_ball.damper", "spring-damper under the ground: M x'
 
 register(ModelKind("oscillators", "two oscillators joined by a spring-damper (problem 7), "
                    "monolithic", oscillators.default_parameters(), oscillators.START,
-                   oscillators.monolithic))
+                   oscillators.monolithic, derived={"F": oscillators.force}))
 register(ModelKind("oscillators.mass1", "mass 1: m1 x1'' = -k1 x1 - c1 v1 - F (input F)",
                    oscillators.default_parameters(), oscillators.START, oscillators.mass1))
 register(ModelKind("oscillators.mass2", "mass 2: m2 x2'' = -k2 x2 - c2 v2 + F (input F)",

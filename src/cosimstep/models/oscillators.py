@@ -29,14 +29,15 @@ def default_parameters() -> dict[str, float]:
             "c": 0.5}
 
 
-def _force(x: np.ndarray, p: Mapping[str, float]) -> float:
+def force(x: np.ndarray, p: Mapping[str, float]) -> np.ndarray:
+    """The spring-damper's force from the states ``x1, v1, x2, v2`` (rows; any columns)."""
     return p["k"] * (x[0] - x[2]) + p["c"] * (x[1] - x[3])
 
 
 def monolithic(parameters: ParameterSchedule, start: Mapping[str, float],
                solver: InternalSolver | None = None) -> OdeSubModel:
     def rhs(t: float, x: np.ndarray, u: np.ndarray, p: Mapping[str, float]) -> np.ndarray:
-        f = _force(x, p)
+        f = force(x, p)
         return np.array([x[1], (-p["k1"] * x[0] - p["c1"] * x[1] - f) / p["m1"],
                          x[3], (-p["k2"] * x[2] - p["c2"] * x[3] + f) / p["m2"]])
 
@@ -56,8 +57,8 @@ def _mass(i: int) -> Any:
         states = [Port(f"x{i}", "m", float(start.get(f"x{i}", 0.0))),
                   Port(f"v{i}", "m/s", float(start.get(f"v{i}", 0.0)))]
         x = np.array([float(start.get(n, 0.0)) for n in START])
-        force = Port("F", "N", _force(x, parameters.at(0.0)))  # until the spring is read
-        return OdeSubModel(rhs, states, inputs=[force], parameters=parameters, solver=solver)
+        pull = Port("F", "N", force(x, parameters.at(0.0)))  # until the spring is read
+        return OdeSubModel(rhs, states, inputs=[pull], parameters=parameters, solver=solver)
 
     build.__doc__ = f"Mass {i}: states x{i}, v{i}; input F (the spring's force)."
     return build
@@ -89,7 +90,7 @@ class Spring(SubModel):
         self._t = t + h
 
     def get_outputs(self) -> np.ndarray:
-        return np.array([_force(self._u, self.parameters.at(self._t))])
+        return np.array([force(self._u, self.parameters.at(self._t))])
 
     def save_state(self) -> Any:
         return self._t, self._u.copy()
