@@ -119,6 +119,39 @@ def test_a_nonlinear_loop_across_two_fmus_is_solved_to_1e_10(tmp_path) -> None:
     assert '"loops"' in res.output
 
 
+def test_an_fmu_output_without_declared_dependencies_closes_the_loop(tmp_path) -> None:
+    """An FMU output whose model description lists no ``dependencies`` depends on every input
+    (FMI 2.0, ModelStructure): the loop is found and solved as when they are declared, not
+    missed (a missed loop would read `sph.c` as it was after the last step)."""
+    import zipfile
+
+    from cosimstep.adapters.fmu import FmuSubModel
+    from cosimstep.fmu.build import build_fmu
+
+    built = build_fmu("loop_sphere")
+    silent = tmp_path / "loop_sphere_silent.fmu"
+    with zipfile.ZipFile(built) as src, zipfile.ZipFile(silent, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item.filename)
+            if item.filename == "modelDescription.xml":
+                data = data.replace(b' dependencies="1 2"', b"")
+            dst.writestr(item, data)
+    assert b"dependencies" not in zipfile.ZipFile(silent).read("modelDescription.xml")
+    system = cosimstep.System().add("lin", FmuSubModel(build_fmu("loop_linear")))
+    system.add("sph", FmuSubModel(silent))
+    system.connect("lin.a", "sph.a").connect("lin.b", "sph.b").connect("sph.c", "lin.c")
+    assert system.models["sph"].capabilities.feedthrough == {"c": ("a", "b")}
+    declared = cosimstep.System().add("lin", FmuSubModel(build_fmu("loop_linear")))
+    declared.add("sph", FmuSubModel(built))
+    declared.connect("lin.a", "sph.a").connect("lin.b", "sph.b").connect("sph.c", "lin.c")
+    assert system.loops() == declared.loops() == [
+        ["lin.a", "lin.b", "lin.c", "sph.a", "sph.b", "sph.c"]]
+    result = cosimstep.simulate(system, 0.3, cosimstep.Fixed(0.1),
+                                cosimstep.MasterOptions(coupling_tol=1e-12))
+    assert result.success, result.message
+    assert np.allclose(result["sph.c"], (3.6 + np.sqrt(1.12)) / 4, rtol=0, atol=1e-12)
+
+
 def test_problem_7_example_runs_against_its_reference(examples) -> None:
     """examples/algebraic_loop.toml (public problem 7: the spring-damper is a feedthrough
     sub-model between the masses): settled at every point, pc at tol 1e-4 delivers err/tol 0.27
