@@ -33,6 +33,17 @@ class Reference:
     model: OdeSubModel
     mapping: Mapping[str, str]
     derived: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # checked now, not when the finished run's error is measured: a run that cannot be
+        # measured should not be run first
+        states = {p.name for p in self.model.state_ports}
+        unknown = sorted(v for v in self.mapping.values() if v not in states
+                         and v not in self.derived)
+        if unknown:
+            raise ValueError(f"the reference map names {', '.join(map(repr, unknown))}, neither "
+                             f"a state ({', '.join(sorted(states))}) nor a quantity computed "
+                             f"from them ({', '.join(sorted(self.derived)) or 'none given'})")
     _segments: list = field(default_factory=list, repr=False)
     _span: tuple[float, float] | None = field(default=None, repr=False)
 

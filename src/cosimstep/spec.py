@@ -165,7 +165,8 @@ def build_reference(sec: ReferenceSection, header: HeaderSection, changes: Chang
                 known += f"; computed from them: {', '.join(sorted(kind.derived))}"
             problems.append(Problem(f"{where}.map.{k}",
                                     f"'{v}' is not a state of '{sec.type}'", known))
-    return Reference(model, dict(sec.map), dict(kind.derived))
+    measurable = {k: v for k, v in sec.map.items() if v in states or v in kind.derived}
+    return Reference(model, measurable, dict(kind.derived))
 
 
 def _master(body: Any, system: System, where: str, problems: list[Problem]) -> MasterOptions:

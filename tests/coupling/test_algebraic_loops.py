@@ -154,8 +154,8 @@ def test_an_fmu_output_without_declared_dependencies_closes_the_loop(tmp_path) -
 
 def test_problem_7_example_runs_against_its_reference(examples) -> None:
     """examples/algebraic_loop.toml (public problem 7: the spring-damper is a feedthrough
-    sub-model between the masses): settled at every point, pc at tol 1e-4 delivers err/tol 0.27
-    (measured; 7263 calls)."""
+    sub-model between the masses): settled at every point, pc at tol 1e-4 delivers err/tol 0.37
+    over every exchanged output, the force included (measured; 7263 calls)."""
     spec = cosimstep.load_system(examples / "algebraic_loop.toml")
     assert spec.system.compile().feedthrough_order == [1]  # the spring, between the masses
     from cosimstep.controllers import make_controller
@@ -182,7 +182,8 @@ def test_the_reference_measures_the_exchanged_force_too(examples, tmp_path) -> N
     master = dataclasses.replace(spec.master, coupling="iqn-ils")
     result = cosimstep.simulate(spec.system, spec.until, make_controller("pc", None, 1e-3),
                                 master, reference=spec.reference)
-    ref = dict(zip(result.names, result.reference.T))
+    mapped = [n for n in result.names if n in spec.reference.mapping]  # the reference's columns
+    ref = dict(zip(mapped, result.reference.T))
     force = 10.0 * (ref["mass1.x1"] - ref["mass2.x2"]) + 0.5 * (ref["mass1.v1"] - ref["mass2.v2"])
     assert np.array_equal(ref["spring.F"], force)
     scaled = {n: np.max(np.abs(result[n] - ref[n]) / (1 + np.abs(ref[n]))) for n in ref}
@@ -196,6 +197,29 @@ def test_the_reference_measures_the_exchanged_force_too(examples, tmp_path) -> N
         cosimstep.load_system(tmp_path / "bad.toml")
     assert "'force' is not a state of 'oscillators'" in str(info.value)
     assert "computed from them: F" in str(info.value)
+
+
+def test_a_derived_reference_quantity_follows_the_parameters_in_force() -> None:
+    """The force of a reference whose k and c change at t = 5 s: at each time, computed from
+    the states with the parameters in force then (the new ones from the change on, as the
+    co-simulation's spring reads them), whatever the order of the times asked for."""
+    from cosimstep.adapters.ode import ParameterSchedule
+    from cosimstep.models import oscillators
+    from cosimstep.reference import Reference
+
+    schedule = ParameterSchedule(oscillators.default_parameters(), [(5.0, {"k": 40.0, "c": 2.0})])
+    model = oscillators.monolithic(schedule, {"x2": 0.5})
+    reference = Reference(model, {"m.x1": "x1", "m.v1": "v1", "m.x2": "x2", "m.v2": "v2",
+                                  "s.F": "F"}, {"F": oscillators.force})
+    reference.solve(0.0, 10.0)
+    times = np.array([5.1, 5.0, np.nextafter(5.0, 0.0), 4.9, 0.0])
+    values = reference.values(times, ["m.x1", "m.v1", "m.x2", "m.v2", "s.F"])
+    for t, row in zip(times, values):
+        assert row[4] == oscillators.force(row[:4], schedule.at(t))
+    before = oscillators.force(values[2, :4], {"k": 40.0, "c": 2.0})
+    assert abs(values[2, 4] - before) > 1e-3  # the old parameters just before the change
+    with pytest.raises(ValueError, match="names 'G', neither a state"):
+        Reference(model, {"s.F": "G"}, {"F": oscillators.force})
 
 
 def test_stiff_two_mass_example_iterated_is_more_accurate_than_explicit(examples) -> None:
@@ -215,7 +239,7 @@ def test_stiff_two_mass_example_iterated_is_more_accurate_than_explicit(examples
     motion = ("mass1.x1", "mass1.v1", "mass2.x2", "mass2.v2")
     assert max(iterated.error.per_variable[n] for n in motion) < 0.2 < 0.9 < max(
         explicit.error.per_variable[n] for n in motion)
-    assert iterated.error.max_scaled < 0.4 < 4.0 < explicit.error.max_scaled
+    assert iterated.error.max_scaled < 0.4 < 3.0 < explicit.error.max_scaled
     assert iterated.coupling["iterations_per_step"] < 2.1
 
 
@@ -245,7 +269,8 @@ def test_trapezoidal_input_is_stable_far_beyond_the_stiff_period(examples, step:
 
 def test_trapezoidal_input_converges_at_second_order(examples) -> None:
     """With the stiff mode damped (c = 20 N s/m) the trapezoidal interface converges at order 2:
-    measured errors 0.335, 0.0854, 0.0137 at ΔT = 0.01, 0.005, 0.002 s."""
+    measured errors of the positions and velocities 0.335, 0.0854, 0.0214 at ΔT = 0.01, 0.005,
+    0.0025 s (the force's alike: 14.5, 3.6, 0.90 N)."""
     master = cosimstep.MasterOptions("gauss-seidel", 1, coupling="iqn-ils",
                                      coupling_input="trapezoidal")
     errors = []
@@ -254,6 +279,6 @@ def test_trapezoidal_input_converges_at_second_order(examples) -> None:
                                      overrides={"parameters": {"c": 20.0}})
         result = cosimstep.simulate(spec.system, spec.until, cosimstep.Fixed(step), master,
                                     reference=spec.reference)
-        errors.append(result.error.max_abs)
+        errors.append(max(e for n, e in result.error.per_variable.items() if n != "spring.F"))
     orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
     assert np.all((orders > 1.8) & (orders < 2.3)), orders

@@ -43,6 +43,10 @@ REGISTRY: dict[str, ModelKind] = {}
 
 
 def register(kind: ModelKind) -> ModelKind:
+    clash = set(kind.derived) & set(kind.start)
+    if clash:  # a map entry could not tell the state from the quantity
+        raise ValueError(f"model kind '{kind.name}': {sorted(clash)} named as states and as "
+                         "derived quantities")
     REGISTRY[kind.name] = kind
     return kind
 
