@@ -56,6 +56,7 @@ class LoopContext:
                         for src, sl in zip(system.src, system.output_slices)]
         self._segment = 0  # index of the first point after the last time event
         self.first_token: Any = None  # the first state saved during the current attempt
+        self.edge = math.nan  # the next time event: a step ending there is told so
 
     def push(self, t: float, y: np.ndarray) -> None:
         self.all_times.append(t)
@@ -87,7 +88,8 @@ class LoopContext:
         if extra:
             times = [*times, *(e[0] for e in extra)]
             history = np.vstack([history, *(e[1] for e in extra)])[-HISTORY_ROWS:]
-        return self.master.step(t, h, times, history, order=order, end=end)
+        edge = abs(t + h - self.edge) <= 1e-9 * h
+        return self.master.step(t, h, times, history, order=order, end=end, edge=edge)
 
     def defect(self) -> tuple[np.ndarray, np.ndarray]:
         y = self.master.last
@@ -181,6 +183,9 @@ class ControllerLoop(_Loop):
             self.budget.check(int(self.runner.calls.sum()) + self._companion_calls())
         h = self._proposed(t, landing)
         ctx.first_token = None
+        ctx.edge = event if event < self.until else math.nan
+        if self.companion is not None:
+            self.companion.ctx.edge = ctx.edge
         try:
             attempt = controller.attempt(ctx, t, h)
         except SubModelError as exc:
@@ -474,7 +479,8 @@ class FixedLoop(_Loop):
             else:
                 first = max(segment, n + 1 - HISTORY_ROWS)
                 table[n + 1] = runner.step(t, h, self.times[first:n + 1].tolist(),
-                                           table[first:n + 1].copy())
+                                           table[first:n + 1].copy(),
+                                           edge=landing == event < until and h == landing - t)
             s = clock + h
             if abs(clock) >= abs(h):
                 carry += (clock - s) + h
