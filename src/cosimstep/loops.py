@@ -131,6 +131,7 @@ class ControllerLoop(_Loop):
                  events: list[float], sink: Store | None, bar: Any) -> None:
         self.runner, self.controller = runner, controller
         self.t0, self.until, self.events = t0, until, events
+        self.final_event = False  # a time event at the end time too (its step is an edge)
         self.sink, self.bar = sink, bar
         self.ctx = LoopContext(runner)
         self.t = t0
@@ -183,7 +184,7 @@ class ControllerLoop(_Loop):
             self.budget.check(int(self.runner.calls.sum()) + self._companion_calls())
         h = self._proposed(t, landing)
         ctx.first_token = None
-        ctx.edge = event if event < self.until else math.nan
+        ctx.edge = event if event < self.until or self.final_event else math.nan
         if self.companion is not None:
             self.companion.ctx.edge = ctx.edge
         try:
@@ -207,11 +208,14 @@ class ControllerLoop(_Loop):
         clock.add(h)
         t = self.t = landing if abs(clock.value - landing) <= 1e-9 * h else clock.value
         at_event = t == event and t < self.until
+        y = attempt.y
+        if t == event and (at_event or self.final_event):
+            y = self.runner.right_limits(t, y)  # the step's own end was judged; go on from here
         if at_event:
             self._restart(controller.event(t))
-        ctx.push(t, attempt.y)
+        ctx.push(t, y)
         if self.companion is not None:
-            self.companion.accepted(t, attempt.y, t == landing)
+            self.companion.accepted(t, y, t == landing)
             self._feed_back(controller)
         if at_event:
             ctx.restart()
@@ -219,7 +223,7 @@ class ControllerLoop(_Loop):
                 self.companion.restart()
         self.steps.append(h)
         if sink is not None:
-            self._store(t, attempt.y)
+            self._store(t, y)
         if self.bar is not None:
             self.bar.update(h)
         if self.watch is not None and (located or crossed):
@@ -396,6 +400,7 @@ class FixedLoop(_Loop):
                  events: list[float], sink: Store | None, bar: Any) -> None:
         self.runner, self.h_step = runner, step
         self.t0, self.until, self.events = t0, until, events
+        self.final_event = False  # a time event at the end time too (its step is an edge)
         self.sink, self.bar = sink, bar
         self.t = t0
         self.n = -1  # index of the newest point in the table
@@ -478,9 +483,12 @@ class FixedLoop(_Loop):
                 lean.step(t, h, n, flat, base)
             else:
                 first = max(segment, n + 1 - HISTORY_ROWS)
+                edge = landing == event and h == landing - t and (event < until
+                                                                  or self.final_event)
                 table[n + 1] = runner.step(t, h, self.times[first:n + 1].tolist(),
-                                           table[first:n + 1].copy(),
-                                           edge=landing == event < until and h == landing - t)
+                                           table[first:n + 1].copy(), edge=edge)
+                if edge:
+                    table[n + 1] = runner.right_limits(landing, table[n + 1])
             s = clock + h
             if abs(clock) >= abs(h):
                 carry += (clock - s) + h

@@ -407,10 +407,14 @@ class Master:
         feedthrough) is then already the event's right-hand value at ``t + h`` (a spring whose
         stiffness changes there gives the new force), so no receiver follows a curve through
         it over the step: those outputs are extrapolated from the step's own side, as a
-        discrete output is held. Interpolated through the new value, a jump of size ``ΔF``
-        was smeared over the step, an ``O(ΔF·h)`` input error that no shorter step reduces
-        relative to its share of the tolerance: `pc` on problem 7 with k changed at 5 s
-        rejected steps down to 1e-10 s there and ended ``failed``.
+        discrete output is held, and the step returns that extrapolation for them, the
+        step's own end, which the controller judges; :meth:`right_limits` gives the values
+        the next segment starts from. Interpolated through the new value, a jump of size
+        ``ΔF`` was smeared over the step, an ``O(ΔF·h)`` input error that no shorter step
+        reduces relative to its share of the tolerance, and every controller that judged the
+        end values saw the jump whatever the step: `pc`, `rkf45` and an iterated coupling on
+        problem 7 with k changed at 5 s rejected steps down to 1e-10 s there and ended
+        ``failed``.
         """
         if self.iteration is None:
             if self._start_without_slopes(times, order, end):
@@ -479,8 +483,21 @@ class Master:
                     coef[:, out] = self._as_input(poly[:, out], h)
         self._settle_feedthrough(t + h, y_new)
         self._check_finite(range(len(self.system.models)), t, y_new, h)
+        if edge:
+            y_new[self._instant] = self.assumed[self._instant]
         self.last = y_new
         return y_new
+
+    def right_limits(self, t: float, y: np.ndarray) -> np.ndarray:
+        """``y`` at a time event ``t`` reached by an edge step (:meth:`step`), with the outputs
+        computed from the instant read again there: the event's right-hand values, where the
+        next segment starts and what the results show at ``t``."""
+        if not self._instant.any():
+            return y
+        y = y.copy()
+        self._settle_feedthrough(t, y)
+        self._check_finite(range(len(self.system.models)), t, y, None)
+        return y
 
     def _as_input(self, coef: np.ndarray, h: float) -> np.ndarray:
         """The input polynomial over the step as the sub-models receive it: as is, or under

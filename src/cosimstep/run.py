@@ -180,6 +180,8 @@ class Synchronous(Scheme):
             self.loop = ControllerLoop(self.runner, self.controller, self.t0, self.until,
                                        self.events, sink, bar)
             self.loop.checkpoints, self.loop.resume_from = self._checkpoints, self._resume_from
+        self.loop.final_event = any(float(e) == self.until for m in self.compiled.models
+                                    for e in m.time_events())
         if watched and isinstance(self.loop, ControllerLoop):
             self.loop.watch, self.loop.fire = self._watch, self._fire_crossed
         if self.richardson and isinstance(self.loop, ControllerLoop):

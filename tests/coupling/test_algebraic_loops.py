@@ -226,10 +226,12 @@ def test_a_step_ending_on_a_parameter_change_does_not_smear_the_new_force(exampl
                                                                           tmp_path) -> None:
     """Problem 7 with the spring stiffened at 5 s (k 10 -> 30 N/m, c 0.5 -> 2): the spring's
     force at 5 s is already the new one, so the masses extrapolate it over the step that ends
-    there instead of following a curve through it. Measured: fixed steps of 0.02 / 0.01 s gave
-    errors 1.1e-2 / 6.3e-3 (order 0.8, the jump smeared over one step) and now 2.1e-3 /
-    2.8e-4 (order 2.9); `pc` at tol 1e-4 ended failed at 5 s (steps rejected down to 1e-10 s)
-    and now completes at 0.39 x tol (9,495 calls)."""
+    there instead of following a curve through it, and the step's own end (the extrapolated
+    force) is what a controller judges. Measured: fixed steps of 0.02 / 0.01 s gave errors
+    1.1e-2 / 6.3e-3 (order 0.8, the jump smeared over one step) and now 2.1e-3 / 2.8e-4
+    (order 2.9); `pc` at tol 1e-4 ended failed at 5 s (steps rejected down to 1e-10 s) and now
+    completes at 0.39 x tol (9,531 calls); so do `rkf45` and IQN-ILS limited to 3 passes a
+    step, which failed there too, and a run whose end time is the change (`--until 5`)."""
     from cosimstep.controllers import make_controller
 
     text = (examples / "algebraic_loop.toml").read_text()
@@ -247,6 +249,17 @@ def test_a_step_ending_on_a_parameter_change_does_not_smear_the_new_force(exampl
                                 spec.master, reference=spec.reference)
     assert result.success, result.message
     assert 0.1 < result.error.max_scaled / 1e-4 < 1.0
+    for until, controller, master in (
+            (10.0, make_controller("rkf45", None, 1e-4), spec.master),
+            (10.0, make_controller("pc", None, 1e-4),
+             cosimstep.MasterOptions("gauss-seidel", 2, coupling="iqn-ils", max_iterations=3)),
+            (5.0, make_controller("pc", None, 1e-4), spec.master)):
+        spec = cosimstep.load_system(tmp_path / "change.toml")
+        result = cosimstep.simulate(spec.system, until, controller, master)
+        assert result.success and result.t_end == until, result.message
+        assert result["spring.F"][-1] == pytest.approx(  # the new force at the end
+            30.0 * (result["mass1.x1"][-1] - result["mass2.x2"][-1])
+            + 2.0 * (result["mass1.v1"][-1] - result["mass2.v2"][-1]), rel=1e-12)
 
 
 def test_stiff_two_mass_example_iterated_is_more_accurate_than_explicit(examples) -> None:
