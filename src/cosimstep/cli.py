@@ -28,7 +28,7 @@ from cosimstep.controllers import (
 )
 from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.iteration import COUPLINGS
-from cosimstep.masters import COUPLING_INPUTS, MASTERS, RESYNC, MasterOptions
+from cosimstep.masters import COUPLING_INPUTS, MASTERS, RESYNC, MasterOptions, trapezoidal_refusal
 from cosimstep.simulate import SimulationResult, simulate
 
 EXIT_FAILED, EXIT_CONFIG = 1, 2
@@ -73,7 +73,8 @@ def main() -> None:
 @click.option("--coupling-input", type=click.Choice(COUPLING_INPUTS), help="Strong coupling: "
               "inputs over a step follow the polynomial through the iterated end value "
               "(polynomial, default: accurate) or are held at the mean of the two end values "
-              "(trapezoidal: stable at steps far beyond a stiff coupling's period).")
+              "(trapezoidal: stable at fixed steps far beyond a stiff coupling's period; "
+              "refused with an adaptive controller).")
 @click.option("--controller", type=click.Choice(sorted(CONTROLLERS)), help="Step controller.")
 @click.option("--step", type=float, help="Fixed step (controller fixed) or initial step [s].")
 @click.option("--tol", type=float,
@@ -382,6 +383,10 @@ def _check_scheme(ctrl: Any, opts: MasterOptions, spec: SystemSpec) -> None:
                                 f"{', '.join(unable)} cannot save and restore its state",
                                 "use a fixed step (--controller fixed --step H) with the "
                                 "gauss-seidel or jacobi master"))
+    if ctrl.needs_rollback and opts.coupling_input == "trapezoidal":
+        problems.append(Problem("coupling_input", trapezoidal_refusal(ctrl.name),
+                                "use a fixed step (--controller fixed --step H) with it, or "
+                                "the polynomial input with an adaptive controller"))
     if unable and opts.coupling != "explicit":
         problems.append(Problem("coupling", f"coupling '{opts.coupling}' repeats every step "
                                 f"from the saved states, but {', '.join(unable)} cannot save "

@@ -14,7 +14,7 @@ from typing import Any
 
 from cosimstep.controllers import Controller
 from cosimstep.kernel import Budget
-from cosimstep.masters import MasterOptions
+from cosimstep.masters import MasterOptions, trapezoidal_refusal
 from cosimstep.reference import Reference
 from cosimstep.result import ModelStats, SimulationResult
 from cosimstep.run import Run, scheme_for
@@ -186,6 +186,8 @@ def _simulate(system: System, until: float, controller: Controller,
             raise ValueError(f"controller '{controller.name}' rejects and re-runs steps, but "
                              f"{', '.join(unable)} cannot save/restore state; choose a "
                              "controller without rollback (e.g. fixed)")
+    if controller.needs_rollback and master.coupling_input == "trapezoidal":
+        raise ValueError(trapezoidal_refusal(controller.name))
     events = sorted({float(e) for m in compiled.models for e in m.time_events() if t0 < e < until})
     scheme = scheme_for(compiled, t0, until, controller, master, events, richardson)
     settings = {"t0": t0, "until": until, "master": vars(master),

@@ -109,3 +109,23 @@ def test_the_command_line_and_the_system_file(tmp_path, examples) -> None:
     assert "iterations" not in out and out["calls_total"] == 40
     res = CliRunner().invoke(main, [*args, "--coupling", "iqn-ils", "--max-iterations", "0"])
     assert res.exit_code == 2 and "max_iterations must be a whole number" in res.output
+
+
+def test_the_trapezoidal_input_is_refused_under_an_error_controlled_controller(examples) -> None:
+    """`pc` with the held mean delivered 31-259 x tol with status ok on the stiff two-mass
+    example (its step doubling judges inputs of the extrapolation's order): refused, with the
+    reason, by `simulate` and by the command line (exit 2); a fixed step takes it."""
+    from click.testing import CliRunner
+
+    from cosimstep.cli import main
+
+    master = cosimstep.MasterOptions("gauss-seidel", 1, coupling="iqn-ils",
+                                     coupling_input="trapezoidal")
+    system, _ = two_mass(STIFF, max_dt=1e-3)
+    with pytest.raises(ValueError, match="controller 'pc' cannot keep its tolerance"):
+        cosimstep.simulate(system, 1.0, make_controller("pc", None, 1e-3), master)
+    assert cosimstep.simulate(system, 1.0, cosimstep.Fixed(0.05), master).success
+    res = CliRunner().invoke(main, ["run", str(examples / "stiff_two_mass.toml"), "--tol",
+                                    "1e-3", "--coupling-input", "trapezoidal", "--no-store"])
+    assert res.exit_code == 2 and "coupling_input" in res.output
+    assert "Traceback" not in res.output
