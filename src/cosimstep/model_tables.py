@@ -56,10 +56,23 @@ def parse_changes(raw: dict[str, Any], loc: Callable[[str], str],
                   problems: list[Problem]) -> Changes:
     """The ``[[parameter_changes]]`` of a system file (or an SSP's cosimstep annotation)."""
     changes: Changes = []
+    first: dict[tuple[float, str], tuple[int, float]] = {}  # (t, name): where set, to what
     for i, c in enumerate(raw.get("parameter_changes", [])):
         parsed = parse(ChangeSection, c, loc(f"parameter_changes[{i}]"), problems)
-        if parsed:
-            changes.append((parsed.t, parsed.set))
+        if not parsed:
+            continue
+        if parsed.t < 0.0:
+            problems.append(Problem(loc(f"parameter_changes[{i}].t"), f"{parsed.t:g} is before "
+                                    "the run starts (t = 0)", "give the value from the start "
+                                    "in [parameters], or a time >= 0"))
+            continue
+        for key, value in parsed.set.items():
+            j, earlier = first.setdefault((parsed.t, key), (i, value))
+            if earlier != value:
+                problems.append(Problem(loc(f"parameter_changes[{i}].set.{key}"),
+                                        f"parameter_changes[{j}] sets it to {earlier:g} at the "
+                                        f"same time t = {parsed.t:g}", "keep one of them"))
+        changes.append((parsed.t, parsed.set))
     return changes
 
 

@@ -16,7 +16,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError
 
 from cosimstep.adapters.ode import ParameterSchedule, make_solver
 from cosimstep.errors import ConfigurationError, Problem
@@ -40,14 +40,14 @@ class Section(BaseModel):
 
 class MasterSection(Section):
     name: str = "gauss-seidel"
-    extrapolation: int = 2
+    extrapolation: StrictInt = 2  # `true` is no order (a lax int would read it as 1)
     order: list[str] | None = None
     call_timeout: float = DEFAULT_CALL_TIMEOUT
     interpolation: str | None = None
     resync: str = "partial"
     coupling: str = "explicit"
     coupling_tol: float = 1e-8
-    max_iterations: int = 50
+    max_iterations: StrictInt = 50
     coupling_input: str = "polynomial"
 
 
@@ -199,8 +199,11 @@ def _unused(header: HeaderSection, changes: Changes, used: set[str], loc: Callab
     for i, (_, values) in enumerate(changes):
         for key in values:
             if key not in used:
+                fix = ("a change sets a shared parameter ([parameters]); one model's own "
+                       "parameters do not change during a run" if "." in key
+                       else "check the spelling")
                 problems.append(Problem(loc(f"parameter_changes[{i}].set.{key}"),
-                                        "no model uses this parameter", "check the spelling"))
+                                        "no model uses this parameter", fix))
 
 
 def _check_controller(sec: ControllerSection, where: str, problems: list[Problem]) -> None:

@@ -88,3 +88,27 @@ def test_extrapolation_is_exact_for_polynomials_of_its_order(order):
     derivs = [np.polynomial.polynomial.polyval(0.7, np.polynomial.polynomial.polyder(poly, k))
               for k in range(order + 1)]
     assert np.allclose(c[:, 0], derivs)
+
+
+def test_parameter_changes_and_master_numbers_are_checked_in_the_file(tmp_path, examples):
+    """Found by trying the examples as a user would: a change before the start was applied
+    from it silently, two changes of one parameter at one time were both taken, `true` was
+    read as extrapolation order 1, and a change of one model's own parameter was told to check
+    its spelling. Each is now a problem of its own, listed together."""
+    from cosimstep import load_system
+
+    text = (examples / "algebraic_loop.toml").read_text()
+    text = text.replace("extrapolation = 2", "extrapolation = true")
+    text += ("\n[[parameter_changes]]\nt = -1.0\nset = { k = 50.0 }\n"
+             "\n[[parameter_changes]]\nt = 5.0\nset = { k = 50.0, c = 1.0 }\n"
+             "\n[[parameter_changes]]\nt = 5.0\nset = { k = 20.0, c = 1.0 }\n"
+             '\n[[parameter_changes]]\nt = 6.0\nset = { "spring.k" = 20.0 }\n')
+    (tmp_path / "bad.toml").write_text(text)
+    with pytest.raises(ConfigurationError) as info:
+        load_system(tmp_path / "bad.toml")
+    text = "\n".join(str(p) for p in info.value.problems)
+    assert len(info.value.problems) == 4, text
+    assert "master.extrapolation: Input should be a valid integer" in text
+    assert "parameter_changes[0].t: -1 is before the run starts" in text
+    assert "parameter_changes[2].set.k: parameter_changes[1] sets it to 50 at the same" in text
+    assert "one model's own parameters do not change during a run" in text
