@@ -207,31 +207,37 @@ class ControllerLoop(_Loop):
         clock = self._clock
         clock.add(h)
         t = self.t = landing if abs(clock.value - landing) <= 1e-9 * h else clock.value
-        at_event = t == event and t < self.until
-        y = attempt.y
-        if t == event and (at_event or self.final_event):
-            y = self.runner.right_limits(t, y)  # the step's own end was judged; go on from here
-        if at_event:
-            self._restart(controller.event(t))
-        ctx.push(t, y)
-        if self.companion is not None:
-            self.companion.accepted(t, y, t == landing)
-            self._feed_back(controller)
-        if at_event:
-            ctx.restart()
-            if self.companion is not None:
-                self.companion.restart()
-        self.steps.append(h)
-        if sink is not None:
-            self._store(t, y)
-        if self.bar is not None:
-            self.bar.update(h)
+        self._keep(t, h, attempt.y, t == landing, t == event)
         if self.watch is not None and (located or crossed):
             self._located = math.nan
             # not located: no saved state to go back to, a step already at the time
             # tolerance, or an indicator already at 0 when the step began
             late = not located and h > EVENT_TOL * max(1.0, abs(t))
             self.fire(self.t, late, before)  # type: ignore[misc]
+
+    def _keep(self, t: float, h: float, y: np.ndarray, landed: bool, on_event: bool) -> None:
+        """Record the accepted step of ``h`` ending at ``t`` with outputs ``y``; ``landed``: on
+        the landing (an event or the end), ``on_event``: on the next time event or the end
+        time. At a time event the step's own end was judged (an edge step, Master.step); the
+        run goes on from, and shows, the event's right-hand values."""
+        at_event = on_event and t < self.until
+        if on_event and (at_event or self.final_event):
+            y = self.runner.right_limits(t, y)
+        if at_event:
+            self._restart(self.controller.event(t))
+        self.ctx.push(t, y)
+        if self.companion is not None:
+            self.companion.accepted(t, y, landed)
+            self._feed_back(self.controller)
+        if at_event:
+            self.ctx.restart()
+            if self.companion is not None:
+                self.companion.restart()
+        self.steps.append(h)
+        if self.sink is not None:
+            self._store(t, y)
+        if self.bar is not None:
+            self.bar.update(h)
 
     def _feed_back(self, controller: Any) -> None:
         """With ``feedback``: the growth the companion measured beyond the summed local
@@ -482,13 +488,7 @@ class FixedLoop(_Loop):
                                                         and h == h_plain)):
                 lean.step(t, h, n, flat, base)
             else:
-                first = max(segment, n + 1 - HISTORY_ROWS)
-                edge = landing == event and h == landing - t and (event < until
-                                                                  or self.final_event)
-                table[n + 1] = runner.step(t, h, self.times[first:n + 1].tolist(),
-                                           table[first:n + 1].copy(), edge=edge)
-                if edge:
-                    table[n + 1] = runner.right_limits(landing, table[n + 1])
+                self._general_step(t, h, n, segment, event if landing == event else math.nan)
             s = clock + h
             if abs(clock) >= abs(h):
                 carry += (clock - s) + h
@@ -505,6 +505,17 @@ class FixedLoop(_Loop):
                 runner.restart()
             due = self._after_point(n, clock, carry, segment, due)
         self._state = (clock, carry, segment, due)
+
+    def _general_step(self, t: float, h: float, n: int, segment: int, event: float) -> None:
+        """The master's general step from row ``n`` into row ``n + 1``; ``event``: the time
+        event this step may land on (NaN: none). A step landing on one is an edge
+        (:meth:`Master.step`), and the row gets the event's right-hand values."""
+        table, first = self.table, max(segment, n + 1 - HISTORY_ROWS)
+        edge = h == event - t and (event < self.until or self.final_event)
+        table[n + 1] = self.runner.step(t, h, self.times[first:n + 1].tolist(),
+                                        table[first:n + 1].copy(), edge=edge)
+        if edge:
+            table[n + 1] = self.runner.right_limits(event, table[n + 1])
 
     def _after_point(self, n: int, clock: float, carry: float, segment: int, due: int) -> int:
         """At the batch's last point: publish, check the budget; the next batch's end."""

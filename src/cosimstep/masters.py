@@ -331,9 +331,7 @@ class Master:
         self._unknowns = self.predicted & ~self.discrete
         # outputs computed from the instant (direct feedthrough): at a time event already on
         # its far side (see step), and the models that have any
-        self._instant = np.array([bool(m.capabilities.feedthrough.get(port.name))
-                                  for m in system.models for port in m.outputs], dtype=bool)
-        self._instant_model = [m.capabilities.has_direct_feedthrough for m in system.models]
+        self._instant, self._instant_model = _instant_outputs(system)
 
     def _predicted_columns(self, sources: list[list[int]]) -> np.ndarray:
         """Outputs that some receiver uses *extrapolated* over a step (not yet computed).
@@ -460,15 +458,7 @@ class Master:
               order: int | None, end: np.ndarray | None, edge: bool = False) -> np.ndarray:
         """One pass of the step: every sub-model once (see :meth:`step`)."""
         p = self.options.extrapolation if order is None else order
-        if end is None:
-            coef = taylor_coefficients(times, history, t, p)
-        else:
-            pts = [*times[-p:], t + h] if p > 0 else [t + h]
-            vals = np.vstack([history[-p:], end]) if p > 0 else end[None, :]
-            coef = taylor_coefficients(pts, vals, t, p)
-            if edge and self._instant.any():  # see step: not through a right-hand value
-                own_side = taylor_coefficients(times, history, t, p)
-                coef[:, self._instant] = own_side[:, self._instant]
+        coef = self._polynomial(t, h, times, history, p, end, edge)
         y_new = history[-1].copy()
         gauss_seidel = self.options.name == "gauss-seidel"
         if end is None and len(times) == 1 and p > 0 and self._dy0 is not None:
@@ -500,6 +490,21 @@ class Master:
             y_new[self._instant] = self.assumed[self._instant]
         self.last = y_new
         return y_new
+
+    def _polynomial(self, t: float, h: float, times: Sequence[float], history: np.ndarray,
+                    p: int, end: np.ndarray | None, edge: bool) -> np.ndarray:
+        """The inputs' polynomial over the step (Taylor coefficients at ``t``): extrapolated
+        from the history, or interpolated through ``end`` — but at an edge not through the
+        right-hand values of the outputs computed from the instant (see :meth:`step`)."""
+        if end is None:
+            return taylor_coefficients(times, history, t, p)
+        pts = [*times[-p:], t + h] if p > 0 else [t + h]
+        vals = np.vstack([history[-p:], end]) if p > 0 else end[None, :]
+        coef = taylor_coefficients(pts, vals, t, p)
+        if edge and self._instant.any():
+            own_side = taylor_coefficients(times, history, t, p)
+            coef[:, self._instant] = own_side[:, self._instant]
+        return coef
 
     def right_limits(self, t: float, y: np.ndarray) -> np.ndarray:
         """``y`` at a time event ``t`` reached by an edge step (:meth:`step`), with the outputs
@@ -785,6 +790,14 @@ class _LeanKernel:
         if isinstance(exc, EndOfSimulation):
             raise EndOfSimulation(self.names[k], exc.reason) from None
         raise SubModelError(self.names[k], t, f"{type(exc).__name__}: {exc}", h) from exc
+
+
+def _instant_outputs(system: CompiledSystem) -> tuple[np.ndarray, list[bool]]:
+    """Which outputs a model computes from its inputs at the same instant (a feedthrough entry
+    that names inputs), as a column mask, and which models have any."""
+    mask = np.array([bool(m.capabilities.feedthrough.get(port.name))
+                     for m in system.models for port in m.outputs], dtype=bool)
+    return mask, [m.capabilities.has_direct_feedthrough for m in system.models]
 
 
 def _start_facts(system: CompiledSystem) -> tuple[bool, bool]:

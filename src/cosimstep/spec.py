@@ -152,8 +152,18 @@ def build_reference(sec: ReferenceSection, header: HeaderSection, changes: Chang
                    for t, vals in changes]
     model = kind.build(ParameterSchedule({**kind.parameters, **shared}, own_changes),
                        header.start, None)
-    outputs = {f"{n}.{p.name}" for n, m in system.models.items() for p in m.outputs}
     states = {p.name for p in model.outputs}
+    problems += _map_problems(sec, kind, states, system, where, refused)
+    measurable = {k: v for k, v in sec.map.items() if v in states or v in kind.derived}
+    return Reference(model, measurable, dict(kind.derived))
+
+
+def _map_problems(sec: ReferenceSection, kind: Any, states: set[str], system: System,
+                  where: str, refused: frozenset[str]) -> list[Problem]:
+    """A reference map's keys that are no output of the system, and values that are neither a
+    state of the monolithic kind nor a quantity it computes from them."""
+    outputs = {f"{n}.{p.name}" for n, m in system.models.items() for p in m.outputs}
+    problems = []
     for k, v in sec.map.items():
         # a refused model's outputs are unknown: its own problems are listed already
         if k not in outputs and k.partition(".")[0] not in refused:
@@ -165,8 +175,7 @@ def build_reference(sec: ReferenceSection, header: HeaderSection, changes: Chang
                 known += f"; computed from them: {', '.join(sorted(kind.derived))}"
             problems.append(Problem(f"{where}.map.{k}",
                                     f"'{v}' is not a state of '{sec.type}'", known))
-    measurable = {k: v for k, v in sec.map.items() if v in states or v in kind.derived}
-    return Reference(model, measurable, dict(kind.derived))
+    return problems
 
 
 def _master(body: Any, system: System, where: str, problems: list[Problem]) -> MasterOptions:
