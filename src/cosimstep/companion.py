@@ -140,6 +140,8 @@ class Companion:
                 self.ctx.push(end, self._scheme(t, end - t))
                 t = end
             y = self._scheme(t, ends[-1] - t)
+        if self.ctx.at_edge(ends[-1], h):  # as the run: go on from the right-hand values
+            y = master.right_limits(ends[-1], y)
         self.ctx.push(ends[-1], y)
         self._token = master.save()
         self.pairs += 1

@@ -88,8 +88,14 @@ class LoopContext:
         if extra:
             times = [*times, *(e[0] for e in extra)]
             history = np.vstack([history, *(e[1] for e in extra)])[-HISTORY_ROWS:]
-        edge = abs(t + h - self.edge) <= 1e-9 * h
-        return self.master.step(t, h, times, history, order=order, end=end, edge=edge)
+        return self.master.step(t, h, times, history, order=order, end=end,
+                                edge=self.at_edge(t + h, h))
+
+    def at_edge(self, end: float, h: float) -> bool:
+        """Whether a step of ``h`` ending at ``end`` ends on the next time event: within the
+        loop's landing tolerance, or a few ulps (a second half step, ``(t + h/2) + h/2``, can
+        miss it by one; such a step taken as no edge was rejected over and over)."""
+        return abs(end - self.edge) <= max(1e-9 * h, 4.0 * math.ulp(self.edge))
 
     def defect(self) -> tuple[np.ndarray, np.ndarray]:
         y = self.master.last
@@ -197,17 +203,20 @@ class ControllerLoop(_Loop):
         if not attempt.accepted:
             self.rejected += 1
             return
-        crossed = False
-        if self.watch is not None:
-            if self._crossing_inside(t, h, attempt.y):
-                return  # back at t; the next attempt ends on the crossing
-            crossed = self.watch(attempt.y) >= 0.0  # judged against the point at t
+        if self.watch is not None and self._crossing_inside(t, h, attempt.y):
+            return  # back at t; the next attempt ends on the crossing
         before = ctx.rows[-1]
         located = t + h == self._located
         clock = self._clock
         clock.add(h)
         t = self.t = landing if abs(clock.value - landing) <= 1e-9 * h else clock.value
-        self._keep(t, h, attempt.y, t == landing, t == event)
+        y = attempt.y
+        if t == event and (t < self.until or self.final_event):
+            # the step's own end was judged (an edge step, Master.step); the run goes on
+            # from, shows, and watches for state events, the event's right-hand values
+            y = self.runner.right_limits(t, y)
+        crossed = self.watch is not None and self.watch(y) >= 0.0  # against the point at t
+        self._keep(t, h, y, t == landing, t == event)
         if self.watch is not None and (located or crossed):
             self._located = math.nan
             # not located: no saved state to go back to, a step already at the time
@@ -218,11 +227,8 @@ class ControllerLoop(_Loop):
     def _keep(self, t: float, h: float, y: np.ndarray, landed: bool, on_event: bool) -> None:
         """Record the accepted step of ``h`` ending at ``t`` with outputs ``y``; ``landed``: on
         the landing (an event or the end), ``on_event``: on the next time event or the end
-        time. At a time event the step's own end was judged (an edge step, Master.step); the
-        run goes on from, and shows, the event's right-hand values."""
+        time (a restart before the end)."""
         at_event = on_event and t < self.until
-        if on_event and (at_event or self.final_event):
-            y = self.runner.right_limits(t, y)
         if at_event:
             self._restart(self.controller.event(t))
         self.ctx.push(t, y)

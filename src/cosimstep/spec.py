@@ -16,7 +16,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from cosimstep.adapters.ode import ParameterSchedule, make_solver
 from cosimstep.errors import ConfigurationError, Problem
@@ -40,15 +40,23 @@ class Section(BaseModel):
 
 class MasterSection(Section):
     name: str = "gauss-seidel"
-    extrapolation: StrictInt = 2  # `true` is no order (a lax int would read it as 1)
+    extrapolation: int = 2
     order: list[str] | None = None
     call_timeout: float = DEFAULT_CALL_TIMEOUT
     interpolation: str | None = None
     resync: str = "partial"
     coupling: str = "explicit"
     coupling_tol: float = 1e-8
-    max_iterations: StrictInt = 50
+    max_iterations: int = 50
     coupling_input: str = "polynomial"
+
+    @field_validator("extrapolation", "max_iterations", mode="before")
+    @classmethod
+    def _no_switch(cls, value: Any) -> Any:
+        """`true` is no number (a lax int would read it as 1); `2.0` still is."""
+        if isinstance(value, bool):
+            raise ValueError("a whole number, not true/false")
+        return value
 
 
 class ControllerSection(BaseModel):

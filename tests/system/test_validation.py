@@ -108,7 +108,7 @@ def test_parameter_changes_and_master_numbers_are_checked_in_the_file(tmp_path, 
         load_system(tmp_path / "bad.toml")
     text = "\n".join(str(p) for p in info.value.problems)
     assert len(info.value.problems) == 4, text
-    assert "master.extrapolation: Input should be a valid integer" in text
+    assert "master.extrapolation: Value error, a whole number, not true/false" in text
     assert "parameter_changes[0].t: -1 is before the run starts" in text
     assert "parameter_changes[2].set.k: parameter_changes[1] sets it to 50 at the same" in text
     assert "one model's own parameters do not change during a run" in text
