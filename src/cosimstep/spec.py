@@ -21,7 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from cosimstep.adapters.ode import ParameterSchedule, make_solver
 from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.masters import DEFAULT_CALL_TIMEOUT, MasterOptions
-from cosimstep.models import REGISTRY
+from cosimstep.models import REGISTRY, ModelKind
 from cosimstep.reference import Reference
 from cosimstep.system import System
 
@@ -166,8 +166,8 @@ def build_reference(sec: ReferenceSection, header: HeaderSection, changes: Chang
     return Reference(model, measurable, dict(kind.derived))
 
 
-def _map_problems(sec: ReferenceSection, kind: Any, states: set[str], system: System,
-                  where: str, refused: frozenset[str]) -> list[Problem]:
+def _map_problems(sec: ReferenceSection, kind: ModelKind, states: set[str],
+                  system: System, where: str, refused: frozenset[str]) -> list[Problem]:
     """A reference map's keys that are no output of the system, and values that are neither a
     state of the monolithic kind nor a quantity it computes from them."""
     outputs = {f"{n}.{p.name}" for n, m in system.models.items() for p in m.outputs}

@@ -124,11 +124,11 @@ class CompiledSystem:
     b: list[np.ndarray]
     feedthrough_order: list[int]
     loops: list[tuple[int, ...]] = field(default_factory=list)
-    owners: list[int] = field(default_factory=list)
-    """The model (index) each output column belongs to."""
     """Algebraic loops: the direct-feedthrough models of each, solved together at every
     communication point (:meth:`~cosimstep.masters.Master.settle`). ``feedthrough_order``
     lists every feedthrough model once, a loop's models together, in the order to settle."""
+    owners: list[int] = field(default_factory=list)
+    """The model (index) each output column belongs to."""
 
     @property
     def n_outputs(self) -> int:
