@@ -163,13 +163,14 @@ def test_console_script_demo(tmp_path):
 
     stored = runs(tmp_path / "demo.db")
     assert [s for _, _, s in stored] == ["ok"] * 3
-    # the three runs at about equal error (measured: fixed 2.1e-4, pc 2.6e-4, multirate 7.0e-5),
-    # the adaptive ones with fewer calls than the fixed step
+    # the adaptive runs within their tolerance 1e-4, with fewer calls and less error than the
+    # fixed step (measured: fixed 4000 calls, 2.1e-4; pc 2856, 1.2e-4; multirate 2225, 3.1e-5)
     rows = {line.split()[0]: line.split() for line in proc.stdout.splitlines()[1:4]}
     calls = {k: int(v[-3]) for k, v in rows.items()}
     errors = {k: float(v[-2]) for k, v in rows.items()}
-    assert calls["adaptive"] < calls["fixed"] and calls["multirate,"] < calls["fixed"]
-    assert max(errors.values()) < 4 * min(errors.values())
+    for adaptive in ("adaptive", "multirate,"):
+        assert calls[adaptive] < calls["fixed"] and errors[adaptive] < errors["fixed"]
+        assert 1e-5 < errors[adaptive] < 2e-4
 
 
 def test_tolerance_with_fixed_controller_is_a_configuration_error(examples):
@@ -363,12 +364,16 @@ def test_param_and_start_change_a_run_without_editing_the_file(examples, tmp_pat
 
 
 def test_budgets_end_a_run_timed_out_with_its_results_stored(examples, tmp_path):
+    from cosimstep.multirate import MAX_PIECES
     from cosimstep.store import read_run
 
     slow = str(examples / "double_pendulum_slow.toml")
     cases = [(["--max-calls", "5000"], 5000, 512 + 2),  # fixed: checked every <= 256 steps
              (["--tol", "1e-6", "--max-calls", "800"], 800, 8),  # checked every attempt
-             (["--master", "multirate", "--tol", "1e-6", "--max-calls", "800"], 800, 20)]
+             # multirate: checked every turn, and one turn can re-run a pending step in up
+             # to MAX_PIECES pieces besides its own trial steps
+             (["--master", "multirate", "--tol", "1e-6", "--max-calls", "800"], 800,
+              MAX_PIECES + 16)]
     for i, (extra, budget, slack) in enumerate(cases):
         db = tmp_path / f"b{i}.db"
         res = CliRunner().invoke(main, ["run", slow, "--json", "--out", str(db), *extra])

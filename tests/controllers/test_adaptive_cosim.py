@@ -190,10 +190,13 @@ def test_defect_runs_and_delivers_the_tolerance(examples, example) -> None:
     """`defect` estimates the error on the predicted outputs only between calibrations; its
     global estimate used to add that shorter vector to the full one of a calibration step and
     failed the run at its second step ("operands could not be broadcast", mixed pendulum).
-    Measured at tol 1e-4: err/tol 0.39 (mixed pendulum, 6256 calls) and 0.45 (problem 6)."""
+    Measured at tol 1e-4: err/tol 0.068 (mixed pendulum, 9496 calls) and 0.38 (problem 6,
+    1630 calls). The pendulum's rates pass through zero, where its error is measured by
+    1 + |y| ≈ 1 (StepPolicy.norm_scale); scaled at each step's own |y| it delivered 0.39 in
+    6256 calls — its estimate overstates this error 4-8×."""
     spec = load_system(examples / f"{example}.toml")
     r = simulate(spec.system, spec.until, make_controller("defect", None, 1e-4),
                  reference=spec.reference)
     assert r.success, r.message
-    assert 0.1 < r.error.max_scaled / 1e-4 < 1.0
+    assert 0.03 < r.error.max_scaled / 1e-4 < 1.0
     assert r.error_estimate is not None and r.error_estimate > r.error.max_scaled

@@ -18,6 +18,7 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
+from cosimstep.controllers.magnitude import RecurringLow
 from cosimstep.controllers.memory import NO_DECAY
 from cosimstep.errors import StepSizeError, is_number
 
@@ -354,6 +355,7 @@ class StepPolicy:
         self.noise_steps = 0  # times a floor was recognised
         # measured growth of the errors beyond their sum (feedback), set by the run's loop
         self.propagation = 1.0
+        self._lows = RecurringLow()  # the outputs' recurring low points (:meth:`norm_scale`)
 
     def start(self, t0: float, t_end: float) -> None:
         self._span = t_end - t0
@@ -365,6 +367,7 @@ class StepPolicy:
         self._count, self._elapsed, self._ends = 0, 0.0, []
         self._rejected, self.floor, self.noise_steps = None, 0.0, 0
         self.propagation = 1.0
+        self._lows.reset()
 
     @property
     def extra_power(self) -> int:
@@ -376,9 +379,22 @@ class StepPolicy:
         rtol = self.tol if self.rtol is None else self.rtol
         return atol + rtol * np.abs(y)
 
+    def norm_scale(self, y: np.ndarray) -> np.ndarray:
+        """The scale an error made at outputs ``y`` is measured by while it persists:
+        :meth:`scale` at ``|y|`` lowered to the low points the outputs keep returning to
+        (:mod:`~cosimstep.controllers.magnitude`; recorded by :meth:`observe`)."""
+        return self.scale(self._lows.level(y))
+
+    def observe(self, t: float, y: np.ndarray) -> None:
+        """Record an accepted step's outputs ``y`` at its end ``t`` (:meth:`norm_scale`)."""
+        self._lows.observe(t, y, min(self._span, self.memory))
+
     def ratio(self, error: np.ndarray, y: np.ndarray, h: float) -> tuple[float, int]:
-        """Largest error / allowed over the variables, and the index where it occurs."""
-        allowed = self.scale(y)
+        """Largest error / allowed over the variables, and the index where it occurs.
+
+        The allowed error is scaled by :meth:`norm_scale`, not by ``y`` now: the error is met
+        wherever the outputs go while it persists."""
+        allowed = self.norm_scale(y)
         if self.global_error:
             # an error is carried for the rest of the run, or for the measured error memory
             window = min(self._span, self.memory)

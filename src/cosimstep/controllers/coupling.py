@@ -121,6 +121,7 @@ class _PolicyController(Controller):
         accepted = ratio <= 1.0
         if accepted:
             self.policy.accepted_step()
+            self.policy.observe(t + h, values)
             self._account(error, values, h)
         k = (k if self.policy.global_error else k + 1) + self.policy.extra_power
         h_next = self.policy.next_step(h, ratio, k, accepted)
