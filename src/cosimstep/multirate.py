@@ -460,8 +460,10 @@ class Multirate:
         model = self.system.models[k]
         self._guard(k, t0, model.restore_state, token)
         pieces = self._pieces(tr, t0, h, actual, y_old)
+        # a track whose step ended on a located discrete change keeps its whole step: a cut
+        # would leave that change recorded at a time the track no longer reaches
         if self._rerun(tr, first, pieces, actual if pieces == 1 else None,
-                       cut=rounds < MAX_RESYNC):
+                       cut=rounds < MAX_RESYNC and k not in self.changing):
             return self._cut_short(k, token, t0, first, rounds)
         change = np.abs(tr.rows[-1] - y_old)
         if np.any(change > 1e3 * np.finfo(float).eps
@@ -500,6 +502,7 @@ class Multirate:
         partners have re-run. Returns True: ``k`` waits for them.
         """
         tr = self.tracks[k]
+        self._requeue.append(k)  # it is behind where it stood: the kernel must see it again
         span = tr.t - t0
         assumed, _ = self.inputs_over(k, t0, span)
         for c in self.consumers[k]:
@@ -664,15 +667,15 @@ class Multirate:
         check) — a first guess from the whole step's deviation cannot see how fast the partner
         moves inside it.
 
-        With ``cut``, the re-run stops at the end of the first piece that had to be shorter than
-        ``h / pieces``: where the partners began to move within the step. Returns whether it
+        With ``cut``, the re-run stops at the end of the first piece that had to be shortened to
+        resolve its inputs: where the partners began to move within the step. Returns whether it
         stopped short of the step's end (:meth:`verify` says why).
         """
         k = tr.index
         t0, t_end = tr.times[first], tr.times[-1]
         h = t_end - t0
         dropped = len(tr.times) - 1 - first
-        shortened = False  # a piece had to be shorter than h / pieces
+        shortened = False  # a piece had to be shortened to resolve its inputs
         del tr.times[first + 1:], tr.rows[first + 1:], tr.steps[first:]
         if tr.slopes:
             del tr.slopes[first + 1:]
@@ -710,7 +713,6 @@ class Multirate:
                     tr.rejected += 1
                     self._guard(k, t, model.restore_state, tr.states[at])
                     step_try = min(verdict.h_next, step)
-                    shortened = True
                     continue
                 tr.spent_out += verdict.spent_out
                 tr.spent_in += verdict.spent_in

@@ -41,6 +41,23 @@ def test_the_low_points_are_forgotten_outside_the_window():
     assert 38.9 < low.level(np.array([40.0]))[0] < 41.0
 
 
+def test_a_rerun_from_an_earlier_time_is_no_low_point():
+    """A rollback re-observes a rising output from an earlier time: without rewinding, the
+    drop from the old end to the re-run's first value and the rise after it read as a minimum
+    (measured before: the level of y = 10 + 100 t pinned at 105 for the rest of the run)."""
+    low = RecurringLow()
+    t = np.linspace(0.0, 1.0, 101)
+    _observe(low, t, 10 + 100 * t, np.inf)
+    again = np.linspace(0.95, 3.0, 206)
+    _observe(low, again, 10 + 100 * again, np.inf)
+    assert low.level(np.array([310.0]))[0] == 310.0
+    # an oscillation's low points before the rollback time are kept
+    osc = RecurringLow()
+    _observe(osc, t, 40 * np.sin(20 * t), np.inf)
+    _observe(osc, again, 40 * np.sin(20 * again), np.inf)
+    assert osc.level(np.array([40.0]))[0] < 40 * np.sin(20 * 0.005)
+
+
 def test_the_policy_allows_the_error_met_at_the_crossing():
     policy = StepPolicy(tol=1e-4)
     policy.start(0.0, 2.0)
