@@ -80,7 +80,8 @@ def main() -> None:
 @click.option("--tol", type=float,
               help="Tolerance of an adaptive controller: the sum of its local error estimates "
               "over the run, in |e| / (1 + |y|) (atol = rtol = tol; set apart with --opt atol=.. "
-              "--opt rtol=..), is aimed at TOL/2; pc lets errors it measured to fade within a "
+              "--opt rtol=..), is aimed at TOL/2, |y| taken at the lowest point each output keeps "
+              "returning to; pc lets errors it measured to fade within a "
               "time M count over M only. --json reports the measured error in that norm "
               "(error.max_scaled, with a reference) and the run's own estimate (error_estimate).")
 @click.option("--estimate", type=click.Choice(["sum", "rerun", "richardson"]), default="sum",
@@ -679,8 +680,8 @@ def _figure_formats() -> set[str]:
 @click.option("--out", default="cosimstep-demo", show_default=True,
               type=click.Path(file_okay=False), help="Folder for the results and the figure.")
 def demo(which: str, out: str) -> None:
-    """The toggled double pendulum run three ways at about equal error, in one figure; or,
-    with `ship`, the ship plant's damage scenario (thesis 1.1)."""
+    """The toggled double pendulum run three ways (a fixed step, `pc` and multirate at tol
+    1e-4), in one figure; or, with `ship`, the ship plant's damage scenario (thesis 1.1)."""
     from cosimstep.demo import run_demo
 
     if which == "ship":
