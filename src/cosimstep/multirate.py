@@ -518,8 +518,8 @@ class Multirate:
         return True
 
     def _truncate(self, tr: Track, i: int) -> None:
-        """Drop the track's points after ``i`` (a re-run's, just made) and restore its
-        sub-model to the state saved at ``i``."""
+        """Drop the track's points after ``i`` (they count as re-runs: ``corrections``) and
+        restore its sub-model to the state saved at ``i``."""
         k = tr.index
         self._guard(k, tr.times[i], self.system.models[k].restore_state, tr.states[i])
         dropped = len(tr.times) - 1 - i
@@ -646,16 +646,7 @@ class Multirate:
             return False
         i = max(candidates)
         tr.resync = (max(rounds, tr.resync[0]), max(tr.t, tr.resync[1]))
-        self._guard(k, tr.times[i], self.system.models[k].restore_state, tr.states[i])
-        dropped = len(tr.times) - 1 - i
-        del tr.times[i + 1:], tr.rows[i + 1:], tr.steps[i:]
-        if tr.slopes:
-            del tr.slopes[i + 1:]
-        tr.states = {j: s for j, s in tr.states.items() if j <= i}
-        tr.segment = self._segment_start(tr)
-        tr.accepted -= dropped
-        tr.corrections += dropped
-        tr.replaced += dropped
+        self._truncate(tr, i)
         tr.rollbacks += 1
         tr.pending = None
         self.state_fired = [e for e in self.state_fired
