@@ -53,10 +53,11 @@ def taylor_coefficients(times: Sequence[float], values: np.ndarray, t0: float,
     n_points = min(len(times), order + 1)
     rows = values[-n_points:]
     s = [float(ti) - t0 for ti in times[-n_points:]]
+    # ``dot`` is ``@`` (the same BLAS product, bit for bit) without the ufunc machinery
     if n_points == order + 1:
-        return weight_matrix(tuple(s)) @ rows
+        return weight_matrix(tuple(s)).dot(rows)
     out = np.zeros((order + 1, values.shape[1]))
-    out[:n_points] = weight_matrix(tuple(s)) @ rows
+    out[:n_points] = weight_matrix(tuple(s)).dot(rows)
     return out
 
 
@@ -181,7 +182,15 @@ def evaluate_at(coefficients: np.ndarray, dts: np.ndarray) -> np.ndarray:
     if order == 0:
         return np.repeat(c[..., :1, :], len(dts), axis=-2)
     # term k at each offset: ((dt/1)·(dt/2))···(dt/k), the running product evaluate forms
-    terms = np.cumprod(dts[:, None] / np.arange(1, order + 1), axis=1)
+    # (on Python floats: the same roundings as NumPy's, without its cost per call)
+    rows = []
+    for dt in dts.tolist():
+        row, term = [], 1.0
+        for k in range(1, order + 1):
+            term *= dt / k
+            row.append(term)
+        rows.append(row)
+    terms = np.array(rows)
     result = c[..., :1, :] + terms[:, :1] * c[..., 1:2, :]
     for k in range(2, order + 1):
         result = result + terms[:, k - 1:k] * c[..., k:k + 1, :]

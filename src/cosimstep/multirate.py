@@ -42,7 +42,13 @@ import numpy as np
 from cosimstep.controllers.base import StepPolicy
 from cosimstep.errors import SubModelError
 from cosimstep.events import MAX_EVENTS, DiscreteEventModel, Event
-from cosimstep.extrapolation import evaluate, evaluate_small, negligible, taylor_coefficients
+from cosimstep.extrapolation import (
+    evaluate,
+    evaluate_small,
+    negligible,
+    taylor_coefficients,
+    weight_matrix,
+)
 from cosimstep.kernel import Actor, Budget, Kernel
 from cosimstep.loops import EVENT_TOL, crossing
 from cosimstep.masters import Master, MasterOptions
@@ -169,6 +175,9 @@ class Multirate:
 
             self.method = make_interpolator(interpolation)
         self.owner = np.array(system.owners, dtype=int)
+        # per global output: its owner and its column among the owner's outputs (Python ints)
+        self._column = [(k, j - system.output_slices[k].start)
+                        for j, k in enumerate(system.owners)]
         self.consumers = [sorted({k for k in range(len(system.models))
                                   if j in self._sources(k)}) for j in range(len(system.models))]
         self.tracks = [Track(k, n, _copy_policy(policy), h0,
@@ -260,11 +269,11 @@ class Multirate:
         the owner's last point: the degree-``order`` extrapolation through its last points.
         Returns the values and whether any of them was extrapolated.
         """
-        tr = self.tracks[self.owner[j]]
-        col = j - self.system.output_slices[tr.index].start
+        owner, col = self._column[j]
+        tr = self.tracks[owner]
         times = tr.times
-        lo, hi = self._segment_bounds(float(at[0]) + 1e-12 * max(1.0, abs(float(at[0]))),
-                                      tr.index)
+        t0 = float(at[0])
+        lo, hi = self._segment_bounds(t0 + 1e-12 * max(1.0, abs(t0)), owner)
         if tr.discrete or (tr.index in self.changing and col in self.changing[tr.index]):
             return self._held(tr, col, at, hi), False
         first, end = _segment_range(times, lo, hi)
@@ -292,8 +301,18 @@ class Multirate:
             hermite = self.method.name == "hermite"
             curve = self.method.fit(pts, vals, slopes if hermite else None)
             return np.asarray(curve(at), dtype=float), False
-        coef = taylor_coefficients(pts, vals[:, None], float(at[0]), len(pts) - 1)
-        return evaluate_small(coef, (at - float(at[0])).tolist())[:, 0], beyond
+        # taylor_coefficients and evaluate_small for one signal, written out: the same
+        # operations in the same order, without their generality
+        coef = weight_matrix(tuple([float(ti) - t0 for ti in pts])).dot(vals[:, None])
+        c = coef[:, 0].tolist()
+        values = []
+        for dt in (at - t0).tolist():
+            term, value = 1.0, c[0]
+            for k in range(1, len(c)):
+                term = term * (dt / k)
+                value = value + term * c[k]
+            values.append(value)
+        return np.array(values), beyond
 
     @staticmethod
     def _held(tr: Track, col: int, at: np.ndarray, hi: float) -> np.ndarray:

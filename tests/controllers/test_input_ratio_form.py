@@ -64,6 +64,7 @@ def test_the_input_ratio_is_bit_for_bit_the_per_curve_form() -> None:
         ctx = SimpleNamespace(
             names=[f"y{i}" for i in range(n_out)], times=times, history=history,
             consumed=rng.random(n_out) < 0.8, discrete=rng.random(n_out) < 0.1,
+            held=np.zeros(n_out, dtype=bool),
             predicted=rng.random(n_out) < 0.5, iterated=bool(rng.random() < 0.2),
             readers=[(np.array([3, 4, 5]), slice(0, 3)), (np.array([0, 1, 2]), slice(3, 6)),
                      (np.array([], dtype=int), slice(6, 6))])

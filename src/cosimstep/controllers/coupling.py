@@ -27,6 +27,7 @@ spend a share of ``tol`` proportional to its length).
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -231,9 +232,10 @@ class PredictorCorrector(_PolicyController):
         self.measures_memory = probe_every != 0
         super().__init__(tol, h0, **policy)
         self.probe = ErrorMemory(every=probe_every)
+        self._plan: tuple[StepContext, _RatioPlan] | None = None
 
     def attempt(self, ctx: StepContext, t: float, h: float) -> Attempt:
-        if bool(np.any(ctx.held & ctx.consumed)):
+        if self._plan_for(ctx).holding:
             # A receiver that holds its inputs (a plain FMU without input derivatives) does not
             # follow the curves this estimate compares: measured on the toggled pendulum, the
             # estimate then let the error reach 28-190x tol. Step doubling measures the step
@@ -259,6 +261,13 @@ class PredictorCorrector(_PolicyController):
                 self.policy.memory = probe.memory
         return attempt
 
+    def _plan_for(self, ctx: StepContext) -> _RatioPlan:
+        """What :meth:`_input_ratio` reads from ``ctx`` that stays fixed over a run (the
+        columns, which are read fresh, who reads what), worked out once per context."""
+        if self._plan is None or self._plan[0] is not ctx:
+            self._plan = (ctx, _RatioPlan(ctx))
+        return self._plan[1]
+
     def _input_ratio(self, ctx: StepContext, t: float, h: float, q: int, y_p: np.ndarray,
                      y_c: np.ndarray) -> np.ndarray:
         """Per output: ‖u_best − u_c‖ / ‖u_p − u_c‖ over the inputs of the sub-model that owns it
@@ -281,48 +290,73 @@ class PredictorCorrector(_PolicyController):
         bar's error was then estimated 460× too low and ``pc`` delivered 15–29× tol
         (docs/concepts.md, "One input ratio per receiver").
         """
-        ratio = np.ones(len(ctx.names))
-        # a discrete output is held by every receiver in both runs: it moves no one
-        cols = np.flatnonzero(ctx.consumed & ~ctx.discrete)
-        if cols.size == 0:
-            return np.zeros(len(ratio))
+        plan = self._plan_for(ctx)
+        if plan.cols.size == 0:
+            return np.zeros(plan.outputs)
         if len(ctx.times) < q + 2:
-            return ratio  # no older point to judge the corrector by: count the predictor's error
-        fresh = ~ctx.predicted[cols] | ctx.iterated
-        n = q + 2
+            return np.ones(plan.outputs)  # no older point to judge the corrector by: count the
+            # predictor's error
+        cols, n = plan.cols, q + 2
         hist = ctx.history[-n:, cols]
         # the five curves over the step (rows: the last n stored points, then the predictor's
         # and the corrector's new values); each is the polynomial through its points, in the
         # Taylor form the master steps with: the same operations as taylor_coefficients and
         # evaluate, so the estimate is bit for bit the one each curve built on its own gave
-        values = np.vstack([hist, y_p[cols], y_c[cols]])
+        values = np.empty((n + 2, cols.size))
+        values[:n] = hist
+        values[n] = y_p[cols]
+        values[n + 1] = y_c[cols]
         s = [float(ti) - t for ti in ctx.times[-n:]]
-        s_end = float(t + h) - t
-        coefficients = np.zeros((5, n + 1, len(cols)))
-        for i, rows in enumerate(([*range(2, n), n],            # u_p, read fresh
-                                  list(range(1, n)),            # u_p, extrapolated
-                                  [*range(1, n), n + 1],        # u_c, read fresh
-                                  [*range(1, n), n],            # u_c, through the predictor's
-                                  [*range(n), n + 1])):         # u_best
-            points = [s[r] if r < n else s_end for r in rows]
-            coefficients[i, :len(rows)] = weight_matrix(tuple(points)) @ values[rows]
+        s.append(float(t + h) - t)
+        s.append(s[-1])
+        coefficients = np.zeros((5, n + 1, cols.size))
+        for i, rows in enumerate(_curve_rows(n)):
+            coefficients[i, :rows.size] = weight_matrix(tuple([s[r] for r in rows])).dot(
+                values[rows])
         u = evaluate_at(coefficients, h * _NODES)
+        fresh = plan.fresh
         u_p = np.where(fresh, u[0], u[1])
         u_c = np.where(fresh, u[2], u[3])
-        u_best = u[4]
         scale = self.policy.scale(hist[-1])
-        moved = np.zeros(len(ratio))
-        left = np.zeros(len(ratio))
-        moved[cols] = np.mean(np.abs(u_p - u_c), axis=0) / scale
-        left[cols] = np.mean(np.abs(u_best - u_c), axis=0) / scale
-        for src, own in ctx.readers:
-            if src.size == 0:
+        # np.mean's sum over the four nodes and division by their count, without its wrapper
+        moved = np.zeros(plan.outputs)
+        left = np.zeros(plan.outputs)
+        moved[cols] = np.add.reduce(np.abs(u_p - u_c), axis=0) / len(_NODES) / scale
+        left[cols] = np.add.reduce(np.abs(u[4] - u_c), axis=0) / len(_NODES) / scale
+        ratio = np.ones(plan.outputs)
+        for src, own in plan.readers:
+            if src is None:
                 ratio[own] = 0.0  # reads nothing: no coupling error of its own
                 continue
-            m = float(np.max(moved[src]))
+            m = float(moved[src].max())
             if m > 0:
-                ratio[own] = float(np.max(left[src])) / m
+                ratio[own] = float(left[src].max()) / m
         return ratio
+
+
+class _RatioPlan:
+    """The fixed part of ``pc``'s input ratio for one step context (see
+    :meth:`PredictorCorrector._plan_for`)."""
+
+    def __init__(self, ctx: StepContext) -> None:
+        self.outputs = len(ctx.names)
+        # a discrete output is held by every receiver in both runs: it moves no one
+        self.cols = np.flatnonzero(ctx.consumed & ~ctx.discrete)
+        self.fresh = ~ctx.predicted[self.cols] | ctx.iterated
+        self.holding = bool(np.any(ctx.held & ctx.consumed))
+        self.readers = [(src if src.size else None, own) for src, own in ctx.readers]
+
+
+@functools.lru_cache(maxsize=8)
+def _curve_rows(n: int) -> tuple[np.ndarray, ...]:
+    """Rows of the stacked values (the last ``n`` stored points, the predictor's and the
+    corrector's new values) that each of ``pc``'s five curves goes through."""
+    return tuple(np.array(rows, dtype=np.intp) for rows in (
+        [*range(2, n), n],            # u_p, read fresh
+        list(range(1, n)),            # u_p, extrapolated
+        [*range(1, n), n + 1],        # u_c, read fresh
+        [*range(1, n), n],            # u_c, through the predictor's
+        [*range(n), n + 1]))          # u_best
 
 
 _NODES = np.array([0.25, 0.5, 0.75, 1.0])  # where input curves are compared over a step
