@@ -247,7 +247,7 @@ class FmuSubModel(FmuBase):
             addr["d"])
         if status > 1:
             raise self._failed("fmi2SetRealInputDerivatives", status)
-        self._derivatives_set = bool(d.any())
+        self._derivatives_set = bool(np.count_nonzero(d))  # d.any(), without its wrapper
         self._derivatives_stale = False
 
     def do_step(self, t: float, h: float) -> None:

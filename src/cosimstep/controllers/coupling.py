@@ -111,7 +111,7 @@ class _PolicyController(Controller):
         fade = math.exp(-h / self.policy.memory)
         self._spent = np.abs(error) if self._spent is None else fade * self._spent + np.abs(error)
         scale = self.policy.scale(values) / self.policy.tol
-        self.error_estimate = max(self.error_estimate, float(np.max(self._spent / scale)))
+        self.error_estimate = max(self.error_estimate, float((self._spent / scale).max()))
 
     def _decide(self, ctx: StepContext, token: Any, t: float, h: float, y: np.ndarray,
                 error: np.ndarray, values: np.ndarray, k: float, names: list[str]) -> Attempt:

@@ -61,11 +61,12 @@ class RecurringLow:
                 self.reset()
             self._last, self._falling = a, np.zeros(a.shape, dtype=bool)
             return
-        turned = falling & (a > last)
-        self._falling = np.where(a < last, True, np.where(a > last, False, falling))
+        rose = a > last
+        turned = falling & rose
+        self._falling = (a < last) | (falling & ~rose)  # kept where |y| stood still
         self._last = a
         changed = self._forget(t, window)
-        if turned.any():
+        if np.count_nonzero(turned):
             minima = np.where(turned, last, np.inf)
             width = window / BUCKETS
             if self._buckets and t - self._buckets[-1][0] < width:
