@@ -301,18 +301,7 @@ class Multirate:
             hermite = self.method.name == "hermite"
             curve = self.method.fit(pts, vals, slopes if hermite else None)
             return np.asarray(curve(at), dtype=float), False
-        # taylor_coefficients and evaluate_small for one signal, written out: the same
-        # operations in the same order, without their generality
-        coef = weight_matrix(tuple([float(ti) - t0 for ti in pts])).dot(vals[:, None])
-        c = coef[:, 0].tolist()
-        values = []
-        for dt in (at - t0).tolist():
-            term, value = 1.0, c[0]
-            for k in range(1, len(c)):
-                term = term * (dt / k)
-                value = value + term * c[k]
-            values.append(value)
-        return np.array(values), beyond
+        return _through(pts, vals, t0, at), beyond
 
     @staticmethod
     def _held(tr: Track, col: int, at: np.ndarray, hi: float) -> np.ndarray:
@@ -1272,6 +1261,22 @@ def _discontinuity(chain: list[tuple[float, _Verdict]], h: float, accepted: _Ver
     if h0 > h and 0.0 < accepted.ratio < first.ratio:
         powers.append(math.log(first.ratio / accepted.ratio) / math.log(h0 / h))
     return bool(powers) and min(powers) < first.power - 1.5
+
+
+def _through(times: list[float], values: np.ndarray, t0: float, at: np.ndarray) -> np.ndarray:
+    """The polynomial through one signal's ``values`` at ``times``, at the times ``at``:
+    :func:`~cosimstep.extrapolation.taylor_coefficients` at ``t0`` and
+    :func:`~cosimstep.extrapolation.evaluate_small`, written out for one signal (the same
+    operations in the same order, bit for bit, without their generality)."""
+    c = weight_matrix(tuple([float(ti) - t0 for ti in times])).dot(values[:, None])[:, 0].tolist()
+    out = []
+    for dt in (at - t0).tolist():
+        term, value = 1.0, c[0]
+        for k in range(1, len(c)):
+            term = term * (dt / k)
+            value = value + term * c[k]
+        out.append(value)
+    return np.array(out)
 
 
 def _segment_range(times: list[float], lo: float, hi: float) -> tuple[int, int]:

@@ -261,6 +261,11 @@ class PredictorCorrector(_PolicyController):
                 self.policy.memory = probe.memory
         return attempt
 
+    def __getstate__(self) -> dict[str, Any]:
+        # a checkpoint keeps the controller, not the context the plan was made for (the master
+        # and its sub-models, saved apart); the plan is made again on the first attempt
+        return {**self.__dict__, "_plan": None}
+
     def _plan_for(self, ctx: StepContext) -> _RatioPlan:
         """What :meth:`_input_ratio` reads from ``ctx`` that stays fixed over a run (the
         columns, which are read fresh, who reads what), worked out once per context."""
