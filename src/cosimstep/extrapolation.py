@@ -190,7 +190,7 @@ def evaluate_at(coefficients: np.ndarray, dts: np.ndarray) -> np.ndarray:
             term *= dt / k
             row.append(term)
         rows.append(row)
-    terms = np.array(rows)
+    terms = np.array(rows).reshape(len(rows), order)
     result = c[..., :1, :] + terms[:, :1] * c[..., 1:2, :]
     for k in range(2, order + 1):
         result = result + terms[:, k - 1:k] * c[..., k:k + 1, :]

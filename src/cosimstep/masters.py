@@ -562,19 +562,17 @@ class Master:
         start = time.perf_counter()
         self.calls[k] += 1
         watch = self._watch
-        try:  # the step's calls under one guard and one time-out stamp
-            if watch is not None:
-                watch.stamp(k, t, h)
-            try:
+        try:  # the step's calls under one guard; watched, each has its own time-out
+            if watch is None:
                 model.set_inputs(u)
                 if q > 0:
                     model.set_input_derivatives(a * coef[1:q + 1, src])
                 model.do_step(t, h)
-            finally:
-                if watch is not None:
-                    watch.running = 0
-                    if watch.abandoned:
-                        raise _Abandoned
+            else:
+                watch.call(k, t, h, model.set_inputs, (u,))
+                if q > 0:
+                    watch.call(k, t, h, model.set_input_derivatives, (a * coef[1:q + 1, src],))
+                watch.call(k, t, h, model.do_step, (t, h))
         except Exception as exc:
             self._reraise(k, t, exc, h)
         self.time_in_models[k] += time.perf_counter() - start
@@ -666,8 +664,8 @@ class Master:
 
     def _check_finite(self, models: Any, t: float, y: np.ndarray,
                       h: float | None = None) -> None:
-        if math.isfinite(y.sum()):  # a NaN or an infinity makes the sum so (an overflow too,
-            return  # and then the check below finds nothing)
+        if np.isfinite(y).all():
+            return
         for k in models:
             block = y[self.system.output_slices[k]]
             if not np.all(np.isfinite(block)):

@@ -230,17 +230,15 @@ class FmuSubModel(FmuBase):
         order = self.capabilities.max_input_derivative_order
         if order == 0:
             super().set_input_derivatives(derivatives)
+        d = np.zeros((order, len(self._in_vr)))
         given = np.asarray(derivatives, dtype=float)[:order, :len(self._in_vr)]  # the reals
-        d = self._d  # written in place: the buffer the FMU is handed
         d[: given.shape[0]] = given
-        d[given.shape[0]:] = 0.0
         self._send_derivatives(d)
 
     def _send_derivatives(self, d: np.ndarray) -> None:
         if self._component is None:
             raise self._not_live()
-        if d is not self._d:
-            self._d[:] = d
+        self._d[:] = d
         addr = self._addr
         status = self._c["fmi2SetRealInputDerivatives"](
             self._component, addr["deriv_vr"], self._deriv_vr_c.size, addr["deriv_order"],
