@@ -521,7 +521,7 @@ class Multirate:
         span = tr.t - t0
         assumed, _ = self.inputs_over(k, t0, span)
         for c in self._past(k, t0):
-            if self.tracks[c].t > t0 * (1 + 1e-12) + 1e-15:  # not rolled back with another
+            if _beyond(self.tracks[c].t, t0):  # not rolled back with another
                 self._rollback(c, t0, k, rounds + 1)
         tr.pending = (token, t0, span, assumed, rounds + 1, first)
         return True
@@ -547,7 +547,7 @@ class Multirate:
         inputs again from ``t0`` instead (:meth:`watch`)."""
         past = []
         for c in self.consumers[k]:
-            if c == k or self.tracks[c].t <= t0 * (1 + 1e-12) + 1e-15:
+            if c == k or not _beyond(self.tracks[c].t, t0):
                 continue
             if c in self.monitors:
                 # its outputs depend on its inputs only through a crossing: a crossing found
@@ -616,7 +616,7 @@ class Multirate:
         """
         rolled = False
         for c in self._past(k, t0):
-            if self.tracks[c].t <= t0 * (1 + 1e-12) + 1e-15:
+            if not _beyond(self.tracks[c].t, t0):
                 continue  # rolled back already with another consumer it reads
             ratio, kept = self._kept(k, c, t0, moved)
             if ratio > 1.0:
@@ -646,7 +646,7 @@ class Multirate:
         is verified again instead). Only an event goes back ``across`` a time event the track
         has passed (a correction before it changes nothing after it)."""
         tr = self.tracks[k]
-        candidates = [i for i in tr.states if tr.times[i] <= t0 * (1 + 1e-12) + 1e-15
+        candidates = [i for i in tr.states if not _beyond(tr.times[i], t0)
                       and (across or i >= tr.segment)]
         if not candidates:
             # before a time event the track has passed (nothing to redo), or a state already
@@ -668,7 +668,7 @@ class Multirate:
         # or in a cycle of partners each hop would go back one more step, down to the last
         # time event
         for c in self.consumers[k]:
-            if c in (k, origin) or self.tracks[c].t <= t0 * (1 + 1e-12) + 1e-15:
+            if c in (k, origin) or not _beyond(self.tracks[c].t, t0):
                 continue
             if c in self.monitors and not across:
                 self.checked[c] = min(self.checked[c], t0)  # see _resynchronize
@@ -964,7 +964,7 @@ class Multirate:
         past it (its outputs held there), gets both sides of the jump, and the event
         re-synchronizes what it reaches (:meth:`_event`)."""
         tr, model = self.tracks[m], self.system.models[m]
-        if tr.t > t * (1 + 1e-12) + 1e-15 and not self._rollback(m, t, m, 0, across=True):
+        if _beyond(tr.t, t) and not self._rollback(m, t, m, 0, across=True):
             raise RuntimeError(f"'{tr.name}' crossed its level at t = {t:.9g} but its saved "
                                "state there is gone; report this as a bug")
         old = tr.rows[-1].copy()
@@ -1034,7 +1034,7 @@ class Multirate:
             other = self.tracks[c]
             if other.discrete and c not in self.monitors:
                 continue  # a scheduled discrete-event model: nothing it does depends on others
-            if other.t > t * (1 + 1e-12) + 1e-15:
+            if _beyond(other.t, t):
                 self._rollback(c, t, k, 0, across=True)
             elif other.t == t:
                 other.segment = len(other.times) - 1
@@ -1261,6 +1261,12 @@ def _discontinuity(chain: list[tuple[float, _Verdict]], h: float, accepted: _Ver
     if h0 > h and 0.0 < accepted.ratio < first.ratio:
         powers.append(math.log(first.ratio / accepted.ratio) / math.log(h0 / h))
     return bool(powers) and min(powers) < first.power - 1.5
+
+
+def _beyond(s: float, t: float) -> bool:
+    """Whether time ``s`` lies past ``t`` by more than rounding (a track that stands at ``t``
+    after a sum of steps may read a few ulps either side of it)."""
+    return s > t * (1 + 1e-12) + 1e-15
 
 
 def _through(times: list[float], values: np.ndarray, t0: float, at: np.ndarray) -> np.ndarray:

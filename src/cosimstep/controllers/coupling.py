@@ -312,8 +312,8 @@ class PredictorCorrector(_PolicyController):
         values[n] = y_p[cols]
         values[n + 1] = y_c[cols]
         s = [float(ti) - t for ti in ctx.times[-n:]]
-        s.append(float(t + h) - t)
-        s.append(s[-1])
+        s.append(float(t + h) - t)  # rows n and n + 1, the predictor's and the corrector's
+        s.append(s[-1])  # new values, both stand at t + h
         coefficients = np.zeros((5, n + 1, cols.size))
         for i, rows in enumerate(_curve_rows(n)):
             coefficients[i, :rows.size] = weight_matrix(tuple([s[r] for r in rows])).dot(
