@@ -249,7 +249,7 @@ class ControllerLoop(_Loop):
         """With ``feedback``: the growth the companion measured beyond the summed local
         estimates, for the step control (see :attr:`StepPolicy.feedback`)."""
         policy = getattr(controller, "policy", None)
-        summed = getattr(controller, "error_estimate", 0.0)
+        summed = getattr(controller, "summed_estimate", 0.0)
         if policy is None or not policy.feedback or not summed > 0.0:
             return
         policy.propagation = max(1.0, self.companion.estimate / summed)

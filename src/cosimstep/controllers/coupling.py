@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from cosimstep.controllers.base import Attempt, Controller, StepContext, StepPolicy
+from cosimstep.controllers.drift import DriftEstimate
 from cosimstep.controllers.memory import ErrorMemory
 from cosimstep.extrapolation import evaluate_at, weight_matrix
 
@@ -68,13 +69,13 @@ class _PolicyController(Controller):
                              "use controller 'pc'")
         self.h0 = h0
         self.error_estimate: float | None = None  # the run's global error estimate (scaled)
-        self._spent: np.ndarray | None = None
+        self._drift = DriftEstimate()
         # the error memory probe (controllers/memory.py): off unless a controller measures it
         self.probe = ErrorMemory(every=0)
 
     def initial_step(self, t0: float, t_end: float) -> float:
         self.policy.start(t0, t_end)
-        self._spent = None
+        self._drift.reset()
         self.probe.reset(t0, t_end)
         self.error_estimate = 0.0
         h0 = self.h0 if self.h0 is not None else 1e-4 * (t_end - t0)
@@ -93,25 +94,34 @@ class _PolicyController(Controller):
         the settling after an event is more accurate than asked (0.013–0.07 × tol at 1e-4 and
         1e-5; docs/concepts.md, "An event starts the step control again")."""
         self.probe.forget()
+        self._drift.jump()
         self.policy.memory = self.probe.memory
         self.policy.restart()
         return self._restart
 
-    def _account(self, error: np.ndarray, values: np.ndarray, h: float) -> None:
+    def _account(self, error: np.ndarray, values: np.ndarray, h: float,
+                 jumping: np.ndarray | None) -> None:
         """Add an accepted step's local error estimate to the run's global error estimate.
 
-        The estimate is the running sum of the local estimates, per output, in the norm
-        ``tol`` bounds (``|e| / (atol/tol + rtol/tol·|y|)``, i.e. ``|e| / (1 + |y|)`` with the
-        default ``atol = rtol = tol``): what the error would be if every step's error were
-        carried to the end unchanged — or, where the error memory ``τ`` was measured
-        (:mod:`~cosimstep.controllers.memory`), fading by ``exp(−h/τ)`` per step. Errors that
-        decay faster or partly cancel (oscillations) make it an overestimate; docs/benchmarks.md
-        has the measured ratios.
+        The running sum of the local estimates, per output, in the norm ``tol`` bounds
+        (``|e| / (atol/tol + rtol/tol·|y|)``, i.e. ``|e| / (1 + |y|)`` with the default
+        ``atol = rtol = tol``): what the error would be if every step's error were carried to
+        the end unchanged — or, where the error memory ``τ`` was measured
+        (:mod:`~cosimstep.controllers.memory`), fading by ``exp(−h/τ)`` per step; except that
+        the part of each error along the motion is carried as a time shift, met later at the
+        motion's speed then (:mod:`~cosimstep.controllers.drift`). Errors that decay faster or
+        partly cancel make it an overestimate; docs/benchmarks.md has the measured ratios.
+        ``jumping``: the discrete outputs.
         """
-        fade = math.exp(-h / self.policy.memory)
-        self._spent = np.abs(error) if self._spent is None else fade * self._spent + np.abs(error)
-        scale = self.policy.scale(values) / self.policy.tol
-        self.error_estimate = max(self.error_estimate, float((self._spent / scale).max()))
+        self._drift.add(error, values, h, self.policy.scale(values), self.policy.tol,
+                        math.exp(-h / self.policy.memory), jumping)
+        self.error_estimate = self._drift.value
+
+    @property
+    def summed_estimate(self) -> float:
+        """The plain sum of the local estimates (no time shift), scaled like ``tol``: what
+        ``feedback`` compares the companion's estimate with."""
+        return self._drift.summed
 
     def _decide(self, ctx: StepContext, token: Any, t: float, h: float, y: np.ndarray,
                 error: np.ndarray, values: np.ndarray, k: float, names: list[str]) -> Attempt:
@@ -123,7 +133,7 @@ class _PolicyController(Controller):
         if accepted:
             self.policy.accepted_step()
             self.policy.observe(t + h, values)
-            self._account(error, values, h)
+            self._account(error, values, h, ctx.discrete)
         k = (k if self.policy.global_error else k + 1) + self.policy.extra_power
         h_next = self.policy.next_step(h, ratio, k, accepted)
         if not accepted:
