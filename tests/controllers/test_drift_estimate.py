@@ -25,9 +25,9 @@ def _feed(estimate: DriftEstimate, times: np.ndarray, path, errors, jumping=None
 
 def test_a_shift_made_on_a_slow_stretch_is_met_at_the_fast_one() -> None:
     """One output, slow (speed 0.01) for 1 s, then fast (speed 2): each slow step's error
-    5e-4 is a time shift of 5e-4 / 0.01 = 0.05 s; nine add to 0.45 s (the first step has no
-    motion to read yet and counts whole), met at speed 2 as 0.9 — where the plain sum stays
-    at 10 x 5e-4."""
+    5e-4 is a time shift of 5e-4 / 0.01 = 0.05 s; eight add to 0.4 s (the first step has no
+    motion to read yet, the second no change of motion: both count whole), met at speed 2 as
+    0.8 — where the plain sum stays at 10 x 5e-4."""
     times = np.linspace(0.0, 1.5, 16)
 
     def path(t: float) -> float:
@@ -37,7 +37,7 @@ def test_a_shift_made_on_a_slow_stretch_is_met_at_the_fast_one() -> None:
     estimate = DriftEstimate()
     _feed(estimate, times, lambda t: [path(t)], errors)
     # largest at the first fast step's end, before 1 + |y| grows
-    expected = (5e-4 + 9 * 0.05 * 2.0) / (1.0 + path(times[11]))
+    expected = (2 * 5e-4 + 8 * 0.05 * 2.0) / (1.0 + path(times[11]))
     assert estimate.value == pytest.approx(expected, rel=1e-6)
     assert estimate.summed == pytest.approx(10 * 5e-4 / (1.0 + path(times[10])), rel=1e-9)
 
@@ -47,10 +47,23 @@ def test_shifts_of_opposite_signs_cancel_and_the_plain_sum_does_not() -> None:
     errors = [[(-1.0) ** i * 1e-4] for i in range(10)]
     estimate = DriftEstimate()
     _feed(estimate, times, lambda t: [t], errors)
-    # the first step whole, the second's shift of -1e-4 s at speed 1 beside it; then the
-    # shifts cancel pairwise
-    assert estimate.value == pytest.approx(2e-4 / 1.2, rel=1e-9)
+    # the first two steps whole, the third's shift of 1e-4 s at speed 1 beside them; then
+    # the shifts cancel pairwise
+    assert estimate.value == pytest.approx(3e-4 / 1.3, rel=1e-9)
     assert estimate.summed == pytest.approx(10 * 1e-4 / 2.0, rel=1e-9)
+
+
+def test_no_shift_is_read_at_a_turning_point() -> None:
+    """y = sin(2 pi t), steps of 0.05 s, an error of 0.04 on the step up to the crest
+    (t = 0.25): its mean speed 0.98 moves y by 0.049 over the step, more than the error, but
+    the motion turns within |v| / |a| = 0.026 s, and e / v = 0.041 s is no first-order shift
+    (read as one, it would be met at the next flank's speed 2 pi as 6.4 times the error)."""
+    times = np.linspace(0.0, 1.0, 21)
+    errors = [[0.04] if i == 4 else [0.0] for i in range(20)]
+    estimate = DriftEstimate()
+    _feed(estimate, times, lambda t: [math.sin(2 * math.pi * t)], errors)
+    assert estimate.value == pytest.approx(estimate.summed, rel=1e-9)
+    assert estimate.summed == pytest.approx(0.04, rel=1e-6)  # met where y crosses zero
 
 
 def test_errors_across_the_motion_are_summed_as_before() -> None:
@@ -82,7 +95,7 @@ def test_a_discrete_output_is_no_speed() -> None:
     masked, unmasked = DriftEstimate(), DriftEstimate()
     _feed(masked, times, path, errors, np.array([False, True]))
     _feed(unmasked, times, path, errors)
-    # masked: the first step whole, then shifts of 1e-4 s at speed 1, largest at y = 1
+    # masked: the first two steps whole, then shifts of 1e-4 s at speed 1, largest at y = 1
     assert masked.value == pytest.approx(10 * 1e-4 / 2.0, rel=1e-6)
     assert unmasked.value > 10 * masked.value  # 8e-4 s met at the jump's 1000 per second
 
@@ -96,14 +109,15 @@ def test_an_event_reads_no_motion_across_it() -> None:
 
 
 def test_fading_applies_to_the_shift_as_to_the_rest() -> None:
-    times = np.linspace(0.0, 1.0, 3)
+    """Four steps along y = t, each with an error of 1e-4, halved per step: the first two
+    whole, the next two shifts (1e-4 s at speed 1); 1.875e-4 at the end (a shift that did
+    not fade: 2.375e-4)."""
     estimate = DriftEstimate()
-    for i in (1, 2):
-        y = np.array([times[i]])
-        estimate.add(np.array([1e-4]), y, 0.5, TOL * (1.0 + y), TOL, 0.5)
-    # the first step unshifted (1e-4), then faded by half, plus a shift of 1e-4 s at speed 1
-    assert estimate.value == pytest.approx((0.5 * 1e-4 + 1e-4) / 2.0, rel=1e-9)
-    assert math.isclose(estimate.summed, (0.5 * 1e-4 + 1e-4) / 2.0, rel_tol=1e-9)
+    for i in range(1, 5):
+        y = np.array([0.5 * i])
+        estimate.add(np.array([1e-4]), y, 0.5, np.array([TOL]), TOL, 0.5)
+    assert estimate.value == pytest.approx(1.875e-4 / 1.0, rel=1e-9)
+    assert estimate.summed == pytest.approx(1.875e-4, rel=1e-9)
 
 
 # measured (pc, gauss-seidel order 2, the suite's 12 s): err/tol 5.45, estimate/err 0.235
