@@ -87,8 +87,10 @@ def main() -> None:
 @click.option("--estimate", type=click.Choice(["sum", "rerun", "richardson"]), default="sum",
               show_default=True,
               help="How an adaptive run estimates its own global error (error_estimate): sum "
-              "of the local estimates (free; too large where errors decay, too small where "
-              "they grow); rerun at 10x TOL first and take a ninth of the difference; or "
+              "of the local estimates (free; pc carries the part along the outputs' motion "
+              "as a time shift, met at the motion's later speed; too large where errors "
+              "decay, too small where they grow); rerun at 10x TOL first and take a ninth "
+              "of the difference; or "
               "richardson: the same run beside it at doubled steps (controller pc, "
               "gauss-seidel or jacobi master; the closest at tight TOL). Both cost about "
               "50 % more calls, reported as error_estimate_calls.")

@@ -66,7 +66,9 @@ def simulate(
     estimate:
         How an adaptive run estimates the global error it delivered
         (``SimulationResult.error_estimate``), without a reference: ``"sum"`` (free) adds up
-        the controller's local estimates, as if no error decayed; ``"rerun"`` runs the system
+        the controller's local estimates, as if no error decayed (``pc``: fading with its
+        measured error memory, and the part along the outputs' motion carried as a time
+        shift, :mod:`cosimstep.controllers.drift`); ``"rerun"`` runs the system
         again at 10× the tolerance first and takes a ninth of the difference
         (:mod:`cosimstep.estimate`; about 50 % more calls, counted in
         ``estimate_calls``), which also sees errors that decay, cancel or grow;
