@@ -133,7 +133,7 @@ class _PolicyController(Controller):
         if accepted:
             self.policy.accepted_step()
             self.policy.observe(t + h, values)
-            self._account(error, values, h, ctx.discrete)
+            self._account(error, values, h, ctx.discrete if ctx.discrete.any() else None)
         k = (k if self.policy.global_error else k + 1) + self.policy.extra_power
         h_next = self.policy.next_step(h, ratio, k, accepted)
         if not accepted:

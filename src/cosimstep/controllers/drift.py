@@ -70,22 +70,28 @@ class DriftEstimate:
         """One accepted step of length ``h``: its local ``error`` estimate and the outputs
         ``values`` at its end (absolute units), ``scale`` the norm's (``atol + rtol·|y|``),
         ``fade`` what the error memory lets the past keep (``exp(−h/M)``), ``jumping`` a mask
-        of discrete outputs."""
+        of discrete outputs (``None``: there are none)."""
         magnitude = np.abs(error)
-        self._plain = magnitude if self._plain is None else fade * self._plain + magnitude
+        if self._plain is None:
+            self._plain = magnitude
+        else:  # (a fade of 1, no memory measured, keeps everything: no product to form)
+            self._plain = (self._plain if fade == 1.0 else fade * self._plain) + magnitude
         norm = scale / tol
         self.summed = max(self.summed, float((self._plain / norm).max()))
         velocity = None
         if self._last is not None and h > 0.0:
             velocity = (values - self._last) / h
-            if jumping is not None and jumping.any():
+            if jumping is not None:
                 velocity[jumping] = 0.0
         tau = self._time_shift(error, velocity, h, scale)
         self._last = values.copy()
         self._velocity, self._h = velocity, h
         self._speed = None if velocity is None else np.abs(velocity)
         across = magnitude if tau == 0.0 else np.abs(error - tau * velocity)
-        self._across = across if self._across is None else fade * self._across + across
+        if self._across is None:
+            self._across = across
+        else:
+            self._across = (self._across if fade == 1.0 else fade * self._across) + across
         self._shift = fade * self._shift + tau
         now = self._across if velocity is None else self._across + abs(self._shift) * self._speed
         self.value = max(self.value, float((now / norm).max()))
@@ -106,5 +112,6 @@ class DriftEstimate:
         if not (vv > 0.0 and vv * h * h > float(e.dot(e))):
             return 0.0
         tau = float(e.dot(v)) / vv
-        a = (velocity - self._velocity) / (0.5 * (h + self._h) * scale)
-        return tau if tau * tau * float(a.dot(a)) < vv else 0.0
+        change = (velocity - self._velocity) / scale  # a = change / (the steps' mean length)
+        mean = 0.5 * (h + self._h)
+        return tau if tau * tau * float(change.dot(change)) < vv * mean * mean else 0.0
