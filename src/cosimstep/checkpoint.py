@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
     Loop = FixedLoop | ControllerLoop
 
-VERSION = 1
+VERSION = 2  # 2: the controllers' run estimate (controllers/drift.py) in the pickle
 
 
 class Checkpoints:

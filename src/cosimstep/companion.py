@@ -150,7 +150,8 @@ class Companion:
     def caveat(self) -> str | None:
         """What makes the estimate unreliable, if anything (the run says so)."""
         if self.lost is not None:
-            return f"{self.lost}; error_estimate is the sum of the local estimates instead"
+            return (f"{self.lost}; error_estimate is the controller's own (the summed "
+                    "local estimates) instead")
         if self.fallbacks > 0.1 * max(self.pairs, 1):
             return (f"the companion took {self.fallbacks} of its {self.pairs} steps as the run "
                     "took them (a sub-model failed on the doubled step): error_estimate misses "

@@ -99,7 +99,7 @@ class _PolicyController(Controller):
         self.policy.restart()
         return self._restart
 
-    def _account(self, error: np.ndarray, values: np.ndarray, h: float,
+    def _account(self, error: np.ndarray, values: np.ndarray, t: float, h: float,
                  jumping: np.ndarray | None) -> None:
         """Add an accepted step's local error estimate to the run's global error estimate.
 
@@ -111,9 +111,9 @@ class _PolicyController(Controller):
         the part of each error along the motion is carried as a time shift, met later at the
         motion's speed then (:mod:`~cosimstep.controllers.drift`). Errors that decay faster or
         partly cancel make it an overestimate; docs/benchmarks.md has the measured ratios.
-        ``jumping``: the discrete outputs.
+        ``t``: the step's start; ``jumping``: the discrete outputs.
         """
-        self._drift.add(error, values, h, self.policy.scale(values), self.policy.tol,
+        self._drift.add(error, values, t, h, self.policy.scale(values), self.policy.tol,
                         math.exp(-h / self.policy.memory), jumping)
         self.error_estimate = self._drift.value
 
@@ -133,7 +133,8 @@ class _PolicyController(Controller):
         if accepted:
             self.policy.accepted_step()
             self.policy.observe(t + h, values)
-            self._account(error, values, h, ctx.discrete if ctx.discrete.any() else None)
+            self._account(error, values, t, h,
+                          ctx.discrete if ctx.discrete.any() else None)
         k = (k if self.policy.global_error else k + 1) + self.policy.extra_power
         h_next = self.policy.next_step(h, ratio, k, accepted)
         if not accepted:

@@ -33,6 +33,8 @@ has the measurements.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -53,6 +55,7 @@ class DriftEstimate:
         self._speed: np.ndarray | None = None  # the last accepted step's motion (its |v|)
         self._velocity: np.ndarray | None = None  # the same, signed
         self._h = 0.0  # the last accepted step's length
+        self._end = math.nan  # and its end
 
     def jump(self) -> None:
         """An event: the outputs may jump here, so the next step's change is no motion; and
@@ -65,12 +68,16 @@ class DriftEstimate:
             self._across = self._across + abs(self._shift) * self._speed
         self._shift, self._last, self._speed, self._velocity = 0.0, None, None, None
 
-    def add(self, error: np.ndarray, values: np.ndarray, h: float, scale: np.ndarray,
-            tol: float, fade: float, jumping: np.ndarray | None = None) -> None:
-        """One accepted step of length ``h``: its local ``error`` estimate and the outputs
-        ``values`` at its end (absolute units), ``scale`` the norm's (``atol + rtol·|y|``),
-        ``fade`` what the error memory lets the past keep (``exp(−h/M)``), ``jumping`` a mask
-        of discrete outputs (``None``: there are none)."""
+    def add(self, error: np.ndarray, values: np.ndarray, t: float, h: float,
+            scale: np.ndarray, tol: float, fade: float,
+            jumping: np.ndarray | None = None) -> None:
+        """One accepted step from ``t`` to ``t + h``: its local ``error`` estimate and the
+        outputs ``values`` at its end (absolute units), ``scale`` the norm's (``atol +
+        rtol·|y|``), ``fade`` what the error memory lets the past keep (``exp(−h/M)``),
+        ``jumping`` a mask of discrete outputs (``None``: there are none). The motion is read
+        only from a step that starts where the last one ended: a step accepted and then
+        undone (one that crossed a state event, redone up to the crossing) leaves the last
+        end point behind, and the change from there is no motion."""
         magnitude = np.abs(error)
         if self._plain is None:
             self._plain = magnitude
@@ -79,13 +86,15 @@ class DriftEstimate:
         norm = scale / tol
         self.summed = max(self.summed, float((self._plain / norm).max()))
         velocity = None
+        if not abs(t - self._end) <= 1e-9 * h:  # not where the last step ended
+            self._last = self._velocity = None
         if self._last is not None and h > 0.0:
             velocity = (values - self._last) / h
             if jumping is not None:
                 velocity[jumping] = 0.0
         tau = self._time_shift(error, velocity, h, scale)
         self._last = values.copy()
-        self._velocity, self._h = velocity, h
+        self._velocity, self._h, self._end = velocity, h, t + h
         self._speed = None if velocity is None else np.abs(velocity)
         across = magnitude if tau == 0.0 else np.abs(error - tau * velocity)
         if self._across is None:
