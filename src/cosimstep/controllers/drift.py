@@ -52,8 +52,7 @@ class DriftEstimate:
         self._plain: np.ndarray | None = None  # every error, summed without a split
         self._shift = 0.0  # Σ τ, in seconds (signed)
         self._last: np.ndarray | None = None  # the outputs at the last accepted step's end
-        self._speed: np.ndarray | None = None  # the last accepted step's motion (its |v|)
-        self._velocity: np.ndarray | None = None  # the same, signed
+        self._velocity: np.ndarray | None = None  # the last accepted step's motion (v)
         self._h = 0.0  # the last accepted step's length
         self._end = math.nan  # and its end
 
@@ -64,9 +63,9 @@ class DriftEstimate:
         with the trajectory, so what lags behind it is not carried as a lag past it: carried
         on as a shift, the pump example's shift from its slow drift before the failure was
         met at the transient after it, 150 times the error."""
-        if self._speed is not None and self._across is not None:
-            self._across = self._across + abs(self._shift) * self._speed
-        self._shift, self._last, self._speed, self._velocity = 0.0, None, None, None
+        if self._velocity is not None and self._across is not None:
+            self._across = self._across + abs(self._shift) * np.abs(self._velocity)
+        self._shift, self._last, self._velocity = 0.0, None, None
 
     def add(self, error: np.ndarray, values: np.ndarray, t: float, h: float,
             scale: np.ndarray, tol: float, fade: float,
@@ -95,14 +94,14 @@ class DriftEstimate:
         tau = self._time_shift(error, velocity, h, scale)
         self._last = values.copy()
         self._velocity, self._h, self._end = velocity, h, t + h
-        self._speed = None if velocity is None else np.abs(velocity)
         across = magnitude if tau == 0.0 else np.abs(error - tau * velocity)
         if self._across is None:
             self._across = across
         else:
             self._across = (self._across if fade == 1.0 else fade * self._across) + across
         self._shift = fade * self._shift + tau
-        now = self._across if velocity is None else self._across + abs(self._shift) * self._speed
+        now = self._across if velocity is None else \
+            self._across + abs(self._shift) * np.abs(velocity)
         self.value = max(self.value, float((now / norm).max()))
 
     def _time_shift(self, error: np.ndarray, velocity: np.ndarray | None, h: float,
