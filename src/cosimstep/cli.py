@@ -82,8 +82,10 @@ def main() -> None:
               "over the run, in |e| / (1 + |y|) (atol = rtol = tol; set apart with --opt atol=.. "
               "--opt rtol=..), is aimed at TOL/2, |y| taken at the lowest point each output keeps "
               "returning to; pc lets errors it measured to fade within a "
-              "time M count over M only. --json reports the measured error in that norm "
-              "(error.max_scaled, with a reference) and the run's own estimate (error_estimate).")
+              "time M count over M only, and tightens its steps once its own estimate "
+              "exceeds TOL (--opt overrun=false: not). --json reports the measured error in "
+              "that norm (error.max_scaled, with a reference) and the run's own estimate "
+              "(error_estimate).")
 @click.option("--estimate", type=click.Choice(["sum", "rerun", "richardson"]), default="sum",
               show_default=True,
               help="How an adaptive run estimates its own global error (error_estimate): sum "

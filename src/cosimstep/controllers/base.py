@@ -283,6 +283,16 @@ class StepPolicy:
         also ran below the error on the pendulums (0.26–1 × it), and loosening on it took them
         to 15 × tol. It cannot help before the growth has shown: the first spike of the
         Brusselator is paid in full (measured in docs/concepts.md, "Limit cycles").
+    overrun:
+        Without ``feedback``: once the run's own estimate (``error_estimate``, its errors along
+        the motion carried as a time shift, :mod:`~cosimstep.controllers.drift`) exceeds
+        ``tol``, the ratios are multiplied by that estimate over the plain sum of the local
+        estimates: what the time shift has made of the sum the control keeps within its
+        share. Below ``tol`` nothing changes: a settling system's estimate may carry a shift
+        beyond its sum too, and tightening on it there (ungated) pushed settling cells below
+        0.1 x tol. Past it the run has measured, without a reference, that it spends more
+        than asked. Like ``feedback`` it cannot undo what was spent before the estimate saw
+        it (docs/concepts.md, "The run's own estimate past the tolerance", has the suite).
     cancellation:
         With ``global_error``: the sum of the local error estimates may reach
         ``cancellation × tol`` before a step is rejected. The control aims at ``target`` of
@@ -321,6 +331,7 @@ class StepPolicy:
     global_error: bool = True
     distribute: bool = False
     feedback: bool = False
+    overrun: bool = True
     cancellation: float = 5.0
 
     def __post_init__(self) -> None:

@@ -111,11 +111,16 @@ class _PolicyController(Controller):
         the part of each error along the motion is carried as a time shift, met later at the
         motion's speed then (:mod:`~cosimstep.controllers.drift`). Errors that decay faster or
         partly cancel make it an overestimate; docs/benchmarks.md has the measured ratios.
-        ``t``: the step's start; ``jumping``: the discrete outputs.
+        ``t``: the step's start; ``jumping``: the discrete outputs. Once the estimate exceeds
+        ``tol``, the step control is tightened by it (:attr:`StepPolicy.overrun`).
         """
         self._drift.add(error, values, t, h, self.policy.scale(values), self.policy.tol,
                         math.exp(-h / self.policy.memory), jumping)
         self.error_estimate = self._drift.value
+        if self.policy.overrun and not self.policy.feedback \
+                and self._drift.value > self.policy.tol:
+            # the run's own estimate says the tolerance is spent (StepPolicy.overrun)
+            self.policy.propagation = max(1.0, self._drift.value / self._drift.summed)
 
     @property
     def summed_estimate(self) -> float:
