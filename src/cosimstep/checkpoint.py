@@ -31,7 +31,8 @@ if TYPE_CHECKING:
 
     Loop = FixedLoop | ControllerLoop
 
-VERSION = 2  # 2: the controllers' run estimate (controllers/drift.py) in the pickle
+VERSION = 3  # 2: the controllers' run estimate (controllers/drift.py) in the pickle;
+# 3: StepPolicy.overrun (an older policy would resume with the gate open by default)
 
 
 class Checkpoints:

@@ -157,10 +157,10 @@ def test_the_brusselator_knows_its_phase_error() -> None:
     assert 0.2 <= result.error_estimate / err <= 5.0
 
 
-def _controller_fed(errors: list[float], overrun: bool = True):
-    """A ``pc`` controller at tol 1e-3 over 10 s fed accepted steps of 0.1 s by hand: one
-    output moving at speed 0.1 for 1 s, then at 10 (the shift met at the fast stretch)."""
-    controller = cs.make_controller("pc", None, TOL, overrun=overrun)
+def _controller_fed(errors: list[float], name: str = "pc", **options):
+    """A controller at tol 1e-3 over 10 s fed accepted steps of 0.1 s by hand: one output
+    moving at speed 0.1 for 1 s, then at 10 (the shift met at the fast stretch)."""
+    controller = cs.make_controller(name, None, TOL, **options)
     controller.initial_step(0.0, 10.0)
     for i, e in enumerate(errors):
         t = 0.1 * i
@@ -180,6 +180,25 @@ def test_the_control_tightens_once_its_own_estimate_exceeds_the_tolerance() -> N
         over.error_estimate / over.summed_estimate, rel=1e-12)
     assert over.policy.propagation > 2.0
     assert _controller_fed([1e-4] * 10 + [0.0] * 2, overrun=False).policy.propagation == 1.0
+
+
+@pytest.mark.parametrize("name, options", [
+    ("corrector", {}),  # its estimate is the discarded predictor's error: 50-100x the kept's
+    ("embedded", {}),
+    ("pc", {"global_error": False}),  # tol bounds each step there, not the run
+])
+def test_only_pc_with_a_global_target_tightens_on_its_estimate(name, options) -> None:
+    fed = _controller_fed([1e-4] * 10 + [0.0] * 2, name, **options)
+    assert fed.error_estimate > TOL and fed.policy.propagation == 1.0
+
+
+def test_adaptive_tol_starts_each_run_at_the_run_s_tolerance() -> None:
+    """`adaptive-tol` moves its inner controller's tol every step; the gate reads the run's
+    tol, and a reused controller starts from it, not from the last run's last value."""
+    controller = cs.make_controller("adaptive-tol", None, TOL)
+    controller._inner.policy.tol = 0.3 * TOL
+    controller.initial_step(0.0, 10.0)
+    assert controller._inner.policy.tol == TOL and controller._inner._budget == TOL
 
 
 # measured (pc, gauss-seidel order 2, the suite's 12 s): without the tightening 15.5 x tol in

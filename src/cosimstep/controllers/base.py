@@ -284,7 +284,8 @@ class StepPolicy:
         to 15 × tol. It cannot help before the growth has shown: the first spike of the
         Brusselator is paid in full (measured in docs/concepts.md, "Limit cycles").
     overrun:
-        Without ``feedback``: once the run's own estimate (``error_estimate``, its errors along
+        Controller ``pc``, with ``global_error`` and without ``feedback``: once the run's own
+        estimate (``error_estimate``, its errors along
         the motion carried as a time shift, :mod:`~cosimstep.controllers.drift`) exceeds
         ``tol``, the ratios are multiplied by that estimate over the plain sum of the local
         estimates: what the time shift has made of the sum the control keeps within its
@@ -364,7 +365,8 @@ class StepPolicy:
         self._rejected: tuple[float, float, float] | None = None  # t, h, estimate / tol
         self.floor = 0.0  # the estimates' noise floor, a share of the tolerance (:meth:`noise`)
         self.noise_steps = 0  # times a floor was recognised
-        # measured growth of the errors beyond their sum (feedback), set by the run's loop
+        # measured growth of the errors beyond their sum, multiplying every ratio: set by the
+        # run's loop from the companion (feedback) or by `pc` from its own estimate (overrun)
         self.propagation = 1.0
         self._lows = RecurringLow()  # the outputs' recurring low points (:meth:`norm_scale`)
 

@@ -58,6 +58,10 @@ class _PolicyController(Controller):
     needs_rollback = True
 
     measures_memory = False  # whether it probes the error memory (``trend``, ``unbiased``)
+    # whether its own estimate may tighten the step control (StepPolicy.overrun): only `pc`'s
+    # is measured within 0.2-5x the error; `corrector` and `embedded` estimate the result they
+    # discard (50-100x the error of the kept one), so past tol they would only spend calls
+    overrun_gate = False
 
     def __init__(self, tol: float = 1e-4, h0: float | None = None, **policy: Any) -> None:
         self.policy = StepPolicy(tol=float(tol), **policy)
@@ -78,6 +82,7 @@ class _PolicyController(Controller):
         self._drift.reset()
         self.probe.reset(t0, t_end)
         self.error_estimate = 0.0
+        self._budget = self.policy.tol  # the run's, which `adaptive-tol` varies per step
         h0 = self.h0 if self.h0 is not None else 1e-4 * (t_end - t0)
         self._restart = min(max(h0, self.policy.hmin), self.policy.hmax)
         return self._restart
@@ -112,15 +117,16 @@ class _PolicyController(Controller):
         motion's speed then (:mod:`~cosimstep.controllers.drift`). Errors that decay faster or
         partly cancel make it an overestimate; docs/benchmarks.md has the measured ratios.
         ``t``: the step's start; ``jumping``: the discrete outputs. Once the estimate exceeds
-        ``tol``, the step control is tightened by it (:attr:`StepPolicy.overrun`).
+        the run's ``tol``, ``pc`` tightens the step control by it (:attr:`StepPolicy.overrun`).
         """
         self._drift.add(error, values, t, h, self.policy.scale(values), self.policy.tol,
                         math.exp(-h / self.policy.memory), jumping)
         self.error_estimate = self._drift.value
-        if self.policy.overrun and not self.policy.feedback \
-                and self._drift.value > self.policy.tol:
+        policy = self.policy
+        if self.overrun_gate and policy.overrun and policy.global_error \
+                and not policy.feedback and self._drift.value > self._budget:
             # the run's own estimate says the tolerance is spent (StepPolicy.overrun)
-            self.policy.propagation = max(1.0, self._drift.value / self._drift.summed)
+            policy.propagation = max(1.0, self._drift.value / self._drift.summed)
 
     @property
     def summed_estimate(self) -> float:
@@ -238,6 +244,7 @@ class PredictorCorrector(_PolicyController):
     """
 
     name = "pc"
+    overrun_gate = True
 
     def __init__(self, tol: float = 1e-4, h0: float | None = None, probe_every: int = 20,
                  **policy: Any) -> None:

@@ -159,6 +159,7 @@ class AdaptiveTolerance(Controller):
 
     def initial_step(self, t0: float, t_end: float) -> float:
         self._mean, self._n = None, 0
+        self._set_tol(self.tol)  # a reused controller: not the last run's last tolerance
         return self._inner.initial_step(t0, t_end)
 
     def event(self, t: float) -> float | None:
