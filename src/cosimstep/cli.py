@@ -82,8 +82,8 @@ def main() -> None:
               "over the run, in |e| / (1 + |y|) (atol = rtol = tol; set apart with --opt atol=.. "
               "--opt rtol=..), is aimed at TOL/2, |y| taken at the lowest point each output keeps "
               "returning to; pc lets errors it measured to fade within a "
-              "time M count over M only, and tightens its steps once its own estimate "
-              "exceeds TOL (--opt overrun=false: not). --json reports the measured error in "
+              "time M count over M only (--opt overrun=true: and tightens its steps once its "
+              "own estimate exceeds TOL). --json reports the measured error in "
               "that norm (error.max_scaled, with a reference) and the run's own estimate "
               "(error_estimate).")
 @click.option("--estimate", type=click.Choice(["sum", "rerun", "richardson"]), default="sum",

@@ -172,14 +172,14 @@ def _controller_fed(errors: list[float], name: str = "pc", **options):
 def test_the_control_tightens_once_its_own_estimate_exceeds_the_tolerance() -> None:
     """While the estimate stays within ``tol`` nothing changes; past it, each ratio is
     multiplied by the estimate over the plain sum (what the time shift made of the sum)."""
-    within = _controller_fed([1e-5] * 10)
+    within = _controller_fed([1e-5] * 10, overrun=True)
     assert within.error_estimate < TOL and within.policy.propagation == 1.0
-    over = _controller_fed([1e-4] * 10 + [0.0] * 2)
+    over = _controller_fed([1e-4] * 10 + [0.0] * 2, overrun=True)
     assert over.error_estimate > TOL
     assert over.policy.propagation == pytest.approx(
         over.error_estimate / over.summed_estimate, rel=1e-12)
     assert over.policy.propagation > 2.0
-    assert _controller_fed([1e-4] * 10 + [0.0] * 2, overrun=False).policy.propagation == 1.0
+    assert _controller_fed([1e-4] * 10 + [0.0] * 2).policy.propagation == 1.0  # opt-in
 
 
 @pytest.mark.parametrize("name, options", [
@@ -188,14 +188,14 @@ def test_the_control_tightens_once_its_own_estimate_exceeds_the_tolerance() -> N
     ("pc", {"global_error": False}),  # tol bounds each step there, not the run
 ])
 def test_only_pc_with_a_global_target_tightens_on_its_estimate(name, options) -> None:
-    fed = _controller_fed([1e-4] * 10 + [0.0] * 2, name, **options)
+    fed = _controller_fed([1e-4] * 10 + [0.0] * 2, name, overrun=True, **options)
     assert fed.error_estimate > TOL and fed.policy.propagation == 1.0
 
 
 def test_adaptive_tol_starts_each_run_at_the_run_s_tolerance() -> None:
     """`adaptive-tol` moves its inner controller's tol every step; the gate reads the run's
     tol, and a reused controller starts from it, not from the last run's last value."""
-    controller = cs.make_controller("adaptive-tol", None, TOL)
+    controller = cs.make_controller("adaptive-tol", None, TOL, overrun=True)
     controller._inner.policy.tol = 0.3 * TOL
     controller.initial_step(0.0, 10.0)
     assert controller._inner.policy.tol == TOL and controller._inner._budget == TOL

@@ -25,8 +25,8 @@ def test_feedback_keeps_the_van_der_pol_oscillator_within_the_tolerance() -> Non
     """The summed local estimates miss the phase error that every jump of the cycle
     multiplies by its slope; the companion sees it. Measured at tol 1e-4: 18.1 x tol and 688
     calls without the feedback, 4.96 x tol and 960 calls (+356 the companion's) with it.
-    (Without the companion, the run's own estimate tightens the control once it exceeds the
-    tolerance, ``overrun``: that is off here, so the plain run is the one feedback is for.)"""
+    (``overrun``, opt-in, tightens the control by the run's own estimate instead; off here,
+    so the plain run is the one feedback is for.)"""
     tol = 1e-4
     plain, tightened = _van_der_pol(tol, False, overrun=False), _van_der_pol(tol, True)
     assert plain.error.max_scaled / tol > 10.0  # the failure the option is for

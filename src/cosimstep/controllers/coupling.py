@@ -117,7 +117,7 @@ class _PolicyController(Controller):
         motion's speed then (:mod:`~cosimstep.controllers.drift`). Errors that decay faster or
         partly cancel make it an overestimate; docs/benchmarks.md has the measured ratios.
         ``t``: the step's start; ``jumping``: the discrete outputs. Once the estimate exceeds
-        the run's ``tol``, ``pc`` tightens the step control by it (:attr:`StepPolicy.overrun`).
+        the run's ``tol``, ``pc`` may tighten the step control by it (:attr:`StepPolicy.overrun`).
         """
         self._drift.add(error, values, t, h, self.policy.scale(values), self.policy.tol,
                         math.exp(-h / self.policy.memory), jumping)
