@@ -186,8 +186,10 @@ def test_the_control_tightens_once_its_own_estimate_exceeds_the_tolerance() -> N
     ("corrector", {}),  # its estimate is the discarded predictor's error: 50-100x the kept's
     ("embedded", {}),
     ("pc", {"global_error": False}),  # tol bounds each step there, not the run
+    ("pc", {"feedback": True}),  # the companion's measure takes precedence
 ])
-def test_only_pc_with_a_global_target_tightens_on_its_estimate(name, options) -> None:
+def test_only_pc_with_a_global_target_and_no_companion_tightens_on_its_estimate(
+        name, options) -> None:
     fed = _controller_fed([1e-4] * 10 + [0.0] * 2, name, overrun=True, **options)
     assert fed.error_estimate > TOL and fed.policy.propagation == 1.0
 
