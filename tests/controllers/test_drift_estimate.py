@@ -214,6 +214,17 @@ def test_van_der_pol_stays_within_ten_times_the_tolerance_by_its_own_estimate() 
                                     cs.make_controller("pc", None, tol, overrun=overrun),
                                     cs.MasterOptions("gauss-seidel", 2), reference=reference)
     assert runs[False].error.max_scaled / tol > 10.0  # what it is for
-    assert runs[False].error_estimate > tol  # and what the run knew
+    assert runs[False].error_estimate > tol  # and what the run knew, and said:
+    assert runs[False].status == "ok" and runs[False].message == (
+        f"completed; its own error estimate is {runs[False].error_estimate / tol:.3g} x tol "
+        "(tighten tol, or check against a reference)")
     assert 0.1 <= runs[True].error.max_scaled / tol <= 10.0
     assert runs[True].calls_total > runs[False].calls_total
+
+
+def test_a_run_within_its_own_estimate_says_completed_alone() -> None:
+    problem = suite.get("linear_fast_slow")  # estimate 0.49 x tol at 1e-3 (suite table)
+    system, _ = problem.build()
+    result = cs.simulate(system, problem.until, cs.make_controller("pc", None, 1e-3),
+                         cs.MasterOptions("gauss-seidel", 2))
+    assert 0.0 < result.error_estimate < 1e-3 and result.message == "completed"
