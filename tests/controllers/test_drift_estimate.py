@@ -132,6 +132,19 @@ def test_a_step_undone_leaves_no_motion_behind() -> None:
     assert estimate.value == pytest.approx(5e-5, rel=1e-9)
 
 
+
+def test_the_split_creates_no_error_in_an_output_that_had_none() -> None:
+    """A slow output (speed 1) carries the error, a fast one (speed 100) none. The motion's
+    direction is the fast output's, so the shift claims tau*v there; the rest of the fast
+    output is bounded by its own error (none), not -tau*v, which the sum without signs would
+    keep beside the shift (the stiff two-mass example's force: 3.2 x its error, 1.05 so)."""
+    times = np.linspace(0.0, 1.0, 11)
+    estimate = DriftEstimate()
+    _feed(estimate, times, lambda t: [t, 100.0 * t], [[1e-4, 0.0]] * 10)
+    assert estimate._shift > 0.0  # shifts were read (eight steps)
+    assert estimate._across[1] == 0.0  # the fast output's rest: it made no error
+    assert estimate._across[0] <= 10 * 1e-4  # the slow output's: at most what it made
+
 def test_fading_applies_to_the_shift_as_to_the_rest() -> None:
     """Four steps along y = t, each with an error of 1e-4, halved per step: the first two
     whole, the next two shifts (1e-4 s at speed 1); 1.875e-4 at the end (a shift that did

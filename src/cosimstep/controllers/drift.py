@@ -12,7 +12,8 @@ read at the speeds where they were made, put 5–20 times too low.
 
 So each accepted step's local error ``e`` is split, in the norm ``tol`` bounds, into its part
 along the step's motion (the outputs' change over the step divided by its length, ``v``) and
-the rest. The part along is the time shift ``τ = ⟨e, v⟩ / ⟨v, v⟩`` (scaled inner products).
+the rest. The part along is the time shift ``τ = ⟨e, v⟩ / ⟨v, v⟩`` (scaled inner products);
+the rest of an output is what is left of its own error, never more than that error.
 Time shifts are scalars and add with their signs: a step that lags and one that leads cancel,
 as they do in the solution. The rest is summed as before, without signs (its propagation is
 unknown: oscillations rotate it between outputs of different scales). Both fade alike where a
@@ -94,7 +95,12 @@ class DriftEstimate:
         tau = self._time_shift(error, velocity, h, scale)
         self._last = values.copy()
         self._velocity, self._h, self._end = velocity, h, t + h
-        across = magnitude if tau == 0.0 else np.abs(error - tau * velocity)
+        # the split moves error between the shift and the rest, it never creates any: an
+        # output's rest is at most its own error (a fast output whose motion sets the shift's
+        # direction would otherwise carry others' errors twice, +τ·v in the shift and −τ·v in
+        # the rest: the stiff two-mass example's force, 3.2 times its error, 1.05 bounded)
+        across = magnitude if tau == 0.0 else \
+            np.minimum(np.abs(error - tau * velocity), magnitude)
         if self._across is None:
             self._across = across
         else:
