@@ -320,7 +320,6 @@ class Synchronous(Scheme):
         return error_report(out.times, out.values[:, cols], ref_values, names), ref_values
 
 
-
 def _say_beyond_tolerance(result: SimulationResult, controller: Any) -> None:
     """Status ``ok`` says the run reached its end, not that it kept its tolerance; where the
     run's own estimate (no reference needed) says it did not, the message says so, so that a
@@ -334,6 +333,7 @@ def _say_beyond_tolerance(result: SimulationResult, controller: Any) -> None:
             and estimate > tol:
         result.message += (f"; its own error estimate is {estimate / tol:.3g} x tol (tighten "
                            "tol, or check against a reference)")
+
 
 class MultiRate(Scheme):
     """One adaptive step per sub-model (:mod:`cosimstep.multirate`), one actor each.
