@@ -78,6 +78,9 @@ class Controller(ABC):
 
     name: ClassVar[str]
     needs_rollback: ClassVar[bool] = False
+    # what a run leaves in its public attributes (not settings): left out of :meth:`describe`,
+    # so a controller used for a second run records that run's settings, not the last run's
+    run_state: ClassVar[frozenset[str]] = frozenset({"error_estimate"})
 
     @abstractmethod
     def initial_step(self, t0: float, t_end: float) -> float: ...
@@ -93,12 +96,12 @@ class Controller(ABC):
     def describe(self) -> dict[str, Any]:
         """Settings, for the results store."""
         return {"name": self.name, **{k: _plain(v) for k, v in vars(self).items()
-                                      if not k.startswith("_")}}
+                                      if not k.startswith("_") and k not in self.run_state}}
 
 
 def _plain(value: Any) -> Any:
-    if isinstance(value, StepPolicy):
-        return {k: v for k, v in vars(value).items() if not k.startswith("_")}
+    if isinstance(value, StepPolicy):  # its fields; what a run measures (memory, floor) is state
+        return {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
     if isinstance(value, Controller) or hasattr(value, "describe"):
         return value.describe()  # a controller's part (its error memory probe): its settings
     return value

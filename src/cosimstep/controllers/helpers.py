@@ -85,6 +85,7 @@ class Switching(Controller):
 
     name = "switching"
     needs_rollback = True
+    run_state = frozenset({"error_estimate", "switches"})
 
     def __init__(self, tol: float = 1e-4, adaptive: str = "pc", step: float | None = None,
                  calm: int = 20, h0: float | None = None, **options: Any) -> None:
