@@ -152,8 +152,8 @@ class Store:
         ``config`` (the settings of the run to be continued) differs from the stored one."""
         ck = read_checkpoint(self.path, run_id, self._db)
         row = self._db.execute("SELECT config_json FROM run WHERE id=?", (run_id,)).fetchone()
-        stored = json.loads(row[0])
         given = json.loads(json.dumps(config, default=str))
+        stored = _known_settings(json.loads(row[0]), given)
         differ = sorted(k for k in {*stored, *given} if stored.get(k) != given.get(k))
         if differ:
             raise ValueError(f"run {run_id} in {self.path} was run with other settings "
@@ -310,6 +310,22 @@ class Checkpoint:
     point: int
     attempt_seq: int
     state: bytes
+
+
+def _known_settings(stored: dict[str, Any], given: dict[str, Any]) -> dict[str, Any]:
+    """``stored`` without the controller entries that ``given`` does not record: an earlier
+    version also recorded what a run had measured into the controller (its error memory,
+    noise floor, error estimate), which is no setting, and a run stored so is resumed all the
+    same. A setting recorded now and not then still differs."""
+    old, new = stored.get("controller"), given.get("controller")
+    if isinstance(old, dict) and isinstance(new, dict):
+        stored = {**stored, "controller": _shared_keys(old, new)}
+    return stored
+
+
+def _shared_keys(old: dict[str, Any], new: dict[str, Any]) -> dict[str, Any]:
+    return {k: _shared_keys(v, new[k]) if isinstance(v, dict) and isinstance(new[k], dict)
+            else v for k, v in old.items() if k in new}
 
 
 def read_checkpoint(path: str | Path, run_id: int | None = None,

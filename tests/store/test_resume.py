@@ -100,6 +100,35 @@ def test_python_sub_models_resume_from_their_pickled_states(examples: Path, tmp_
                           read_run(tmp_path / "part.db").reference)
 
 
+def test_a_run_stored_with_its_measured_state_in_the_settings_resumes(examples: Path,
+                                                                     tmp_path: Path) -> None:
+    """An earlier version recorded what a run had measured into the controller (pc's error
+    memory, noise floor, error estimate) among its settings; such a run still resumes, and
+    one stored with another setting is still refused."""
+    from cosimstep.controllers import make_controller
+
+    def run(**kw: Any) -> cosimstep.SimulationResult:
+        spec = cosimstep.load_system(examples / "double_pendulum_mixed.toml")
+        return cosimstep.simulate(spec.system, 1.0, make_controller("pc", None, 1e-4),
+                                  cosimstep.MasterOptions("gauss-seidel", 2),
+                                  store=tmp_path / "old.db", **kw)
+
+    assert run(checkpoint_steps=7, max_calls=100).status == "timed_out"
+    with sqlite3.connect(tmp_path / "old.db") as db:
+        config = json.loads(db.execute("SELECT config_json FROM run").fetchone()[0])
+        controller = config["controller"]
+        controller["error_estimate"] = 3e-5
+        controller["policy"].update(memory=0.4, floor=0.0, noise_steps=0, propagation=1.0,
+                                    safety=0.9)  # the last is a setting: refused
+        db.execute("UPDATE run SET config_json=?", (json.dumps(config),))
+    with pytest.raises(ValueError, match=r"other settings \(controller\)"):
+        run(resume=1)
+    with sqlite3.connect(tmp_path / "old.db") as db:
+        controller["policy"]["safety"] = 0.85  # pc's own: only the measured state differs
+        db.execute("UPDATE run SET config_json=?", (json.dumps(config),))
+    assert run(resume=1).success
+
+
 class _Unpicklable(cosimstep.OdeSubModel):
     def serialize_state(self, token: Any) -> bytes:
         raise NotImplementedError("its solver holds an open handle")
