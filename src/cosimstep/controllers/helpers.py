@@ -93,6 +93,7 @@ class Switching(Controller):
 
         self.tol, self.adaptive, self.step, self.calm = float(tol), adaptive, step, int(calm)
         self._inner = make_controller(adaptive, h0, tol, **options)
+        self._inner_settings = self._inner.describe()  # its options, before a run moves them
         self._band = StepPolicy(tol=float(tol))
         self._fixed: float | None = None
         self._recent: list[float] = []
@@ -155,6 +156,8 @@ class AdaptiveTolerance(Controller):
             raise ValueError("`relax` must be >= 1")
         self.tol, self.inner, self.relax = float(tol), inner, float(relax)
         self._inner = make_controller(inner, h0, tol, **options)
+        # its options, recorded before a run moves its tolerance step by step
+        self._inner_settings = self._inner.describe()
         self._mean: np.ndarray | None = None
         self._n = 0
 
