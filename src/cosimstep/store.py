@@ -153,7 +153,7 @@ class Store:
         ck = read_checkpoint(self.path, run_id, self._db)
         row = self._db.execute("SELECT config_json FROM run WHERE id=?", (run_id,)).fetchone()
         given = json.loads(json.dumps(config, default=str))
-        stored = _known_settings(json.loads(row[0]), given)
+        stored, given = _known_settings(json.loads(row[0]), given)
         differ = sorted(k for k in {*stored, *given} if stored.get(k) != given.get(k))
         if differ:
             raise ValueError(f"run {run_id} in {self.path} was run with other settings "
@@ -312,20 +312,25 @@ class Checkpoint:
     state: bytes
 
 
-def _known_settings(stored: dict[str, Any], given: dict[str, Any]) -> dict[str, Any]:
-    """``stored`` without the controller entries that ``given`` does not record: an earlier
-    version also recorded what a run had measured into the controller (its error memory,
-    noise floor, error estimate), which is no setting, and a run stored so is resumed all the
-    same. A setting recorded now and not then still differs."""
+def _known_settings(stored: dict[str, Any], given: dict[str, Any]
+                    ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``stored`` and ``given`` with their controller entries cut to the keys both record.
+    An earlier version recorded what a run had measured into the controller among its
+    settings (its error memory, noise floor, error estimate), which is no setting, and did
+    not record the options of the controller that `switching` or `adaptive-tol` wrap, which
+    such a record therefore cannot tell; a run stored so is resumed all the same. A setting
+    that both record still has to agree, and so does the controller's name."""
     old, new = stored.get("controller"), given.get("controller")
     if isinstance(old, dict) and isinstance(new, dict):
         stored = {**stored, "controller": _shared_keys(old, new)}
-    return stored
+        given = {**given, "controller": _shared_keys(new, old)}
+    return stored, given
 
 
-def _shared_keys(old: dict[str, Any], new: dict[str, Any]) -> dict[str, Any]:
-    return {k: _shared_keys(v, new[k]) if isinstance(v, dict) and isinstance(new[k], dict)
-            else v for k, v in old.items() if k in new}
+def _shared_keys(one: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
+    """``one``'s entries whose keys ``other`` has too, nested dicts alike."""
+    return {k: _shared_keys(v, other[k]) if isinstance(v, dict) and isinstance(other[k], dict)
+            else v for k, v in one.items() if k in other}
 
 
 def read_checkpoint(path: str | Path, run_id: int | None = None,

@@ -129,6 +129,28 @@ def test_a_run_stored_with_its_measured_state_in_the_settings_resumes(examples: 
     assert run(resume=1).success
 
 
+def test_a_wrapping_controller_s_run_stored_without_its_inner_settings_resumes(
+        examples: Path, tmp_path: Path) -> None:
+    """An earlier version did not record the options of the controller `switching` wraps;
+    such a run resumes (the record cannot tell them), and one of another controller does not."""
+    from cosimstep.controllers import make_controller
+
+    def run(name: str = "switching", **kw: Any) -> cosimstep.SimulationResult:
+        spec = cosimstep.load_system(examples / "double_pendulum_mixed.toml")
+        return cosimstep.simulate(spec.system, 1.0, make_controller(name, None, 1e-4),
+                                  cosimstep.MasterOptions("gauss-seidel", 2),
+                                  store=tmp_path / "old.db", **kw)
+
+    assert run(checkpoint_steps=7, max_calls=100).status == "timed_out"
+    with sqlite3.connect(tmp_path / "old.db") as db:
+        config = json.loads(db.execute("SELECT config_json FROM run").fetchone()[0])
+        del config["controller"]["inner_settings"]
+        db.execute("UPDATE run SET config_json=?", (json.dumps(config),))
+    with pytest.raises(ValueError, match=r"other settings \(controller\)"):
+        run("adaptive-tol", resume=1)
+    assert run(resume=1).success
+
+
 class _Unpicklable(cosimstep.OdeSubModel):
     def serialize_state(self, token: Any) -> bytes:
         raise NotImplementedError("its solver holds an open handle")
