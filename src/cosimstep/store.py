@@ -157,8 +157,8 @@ class Store:
         differ = sorted(k for k in {*stored, *given} if stored.get(k) != given.get(k))
         if differ:
             raise ValueError(f"run {run_id} in {self.path} was run with other settings "
-                             f"({', '.join(differ)}): resume it with the same system file "
-                             "and options")
+                             f"({', '.join(differ)}: {_differences(stored, given)}): resume it "
+                             "with the same system file and options")
         have = [r[0] for r in self._db.execute(
             "SELECT name FROM variable WHERE run_id=? ORDER BY id", (run_id,))]
         if have != list(names):
@@ -331,6 +331,23 @@ def _shared_keys(one: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
     """``one``'s entries whose keys ``other`` has too, nested dicts alike."""
     return {k: _shared_keys(v, other[k]) if isinstance(v, dict) and isinstance(other[k], dict)
             else v for k, v in one.items() if k in other}
+
+
+def _differences(stored: dict[str, Any], given: dict[str, Any], most: int = 4) -> str:
+    """The settings that differ, each as ``path stored → given`` (the first ``most``), so a
+    refused resume says which option to give again rather than which group it is in."""
+    found: list[str] = []
+
+    def walk(a: Any, b: Any, path: str) -> None:
+        if isinstance(a, dict) and isinstance(b, dict):
+            for k in sorted({*a, *b}, key=str):
+                walk(a.get(k, "(none)"), b.get(k, "(none)"), f"{path}.{k}" if path else str(k))
+        elif a != b:
+            found.append(f"{path} {a!r} stored, {b!r} now")
+
+    walk(stored, given, "")
+    more = f"; {len(found) - most} more" if len(found) > most else ""
+    return "; ".join(found[:most]) + more
 
 
 def read_checkpoint(path: str | Path, run_id: int | None = None,

@@ -121,7 +121,8 @@ def test_a_run_stored_with_its_measured_state_in_the_settings_resumes(examples: 
         controller["policy"].update(memory=0.4, floor=0.0, noise_steps=0, propagation=1.0,
                                     safety=0.9)  # the last is a setting: refused
         db.execute("UPDATE run SET config_json=?", (json.dumps(config),))
-    with pytest.raises(ValueError, match=r"other settings \(controller\)"):
+    with pytest.raises(ValueError, match=r"other settings \(controller: "
+                                         r"controller\.policy\.safety 0\.9 stored, 0\.85 now\)"):
         run(resume=1)
     with sqlite3.connect(tmp_path / "old.db") as db:
         controller["policy"]["safety"] = 0.85  # pc's own: only the measured state differs
@@ -146,7 +147,8 @@ def test_a_wrapping_controller_s_run_stored_without_its_inner_settings_resumes(
         config = json.loads(db.execute("SELECT config_json FROM run").fetchone()[0])
         del config["controller"]["inner_settings"]
         db.execute("UPDATE run SET config_json=?", (json.dumps(config),))
-    with pytest.raises(ValueError, match=r"other settings \(controller\)"):
+    with pytest.raises(ValueError, match=r"other settings \(controller: controller\.name "
+                                         r"'switching' stored, 'adaptive-tol' now"):
         run("adaptive-tol", resume=1)
     assert run(resume=1).success
 
@@ -177,9 +179,11 @@ def test_runs_that_cannot_resume_say_why(examples: Path, tmp_path: Path) -> None
                               "--checkpoint-steps", "100"])
     res = CliRunner().invoke(main, [*fixed[:-1], "rkf45", "--tol", "1e-4",
                                     "--resume", str(db2)])
-    assert res.exit_code == 2 and "other settings (controller)" in res.output
+    assert res.exit_code == 2 and "other settings (controller: controller.name 'fixed' " \
+        "stored, 'rkf45' now" in res.output
     res = CliRunner().invoke(main, [*fixed, "--extrapolation", "0", "--resume", str(db2)])
-    assert res.exit_code == 2 and "other settings (master)" in res.output
+    assert res.exit_code == 2 and "other settings (master: master.extrapolation 2 stored, " \
+        "0 now)" in res.output
     res = CliRunner().invoke(main, [*fixed, "--resume", str(db2), "--run", "7"])
     assert res.exit_code == 2 and "no run 7" in res.output
     res = CliRunner().invoke(main, [*fixed, "--resume", str(db2), "--out", "x.db"])
