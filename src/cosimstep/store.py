@@ -334,8 +334,8 @@ def _shared_keys(one: dict[str, Any], other: dict[str, Any]) -> dict[str, Any]:
 
 
 def _differences(stored: dict[str, Any], given: dict[str, Any], most: int = 4) -> str:
-    """The settings that differ, each as ``path stored → given`` (the first ``most``), so a
-    refused resume says which option to give again rather than which group it is in."""
+    """The settings that differ, each as ``path <stored> stored, <given> now`` (the first
+    ``most``), so a refused resume says which option to give again, not only its group."""
     found: list[str] = []
 
     def walk(a: Any, b: Any, path: str) -> None:

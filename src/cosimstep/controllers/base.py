@@ -95,10 +95,8 @@ class Controller(ABC):
 
     def describe(self) -> dict[str, Any]:
         """Settings, for the results store."""
-        settings = {"name": self.name, **{k: _plain(v) for k, v in vars(self).items()
-                                          if not k.startswith("_") and k not in self.run_state}}
-        inner = getattr(self, "_inner_settings", None)  # a controller that wraps another
-        return settings if inner is None else {**settings, "inner_settings": inner}
+        return {"name": self.name, **{k: _plain(v) for k, v in vars(self).items()
+                                      if not k.startswith("_") and k not in self.run_state}}
 
 
 def _plain(value: Any) -> Any:

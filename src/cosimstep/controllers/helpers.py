@@ -72,7 +72,23 @@ def fixed_step_from(step_sizes: np.ndarray, skip: int = 20, quantile: float = 0.
     return float(np.quantile(steps, quantile)) if quantile > 0 else float(steps.min())
 
 
-class Switching(Controller):
+class _Wrapping(Controller):
+    """A controller that hands the steps to another it builds (``switching``,
+    ``adaptive-tol``): its record holds the wrapped one's settings, taken when it is built —
+    before a run moves them (``adaptive-tol`` its tolerance, step by step) — so runs that
+    differ only in the wrapped controller's options are told apart."""
+
+    def _wrap(self, name: str, h0: float | None, tol: float, options: dict[str, Any]) -> None:
+        from cosimstep.controllers import make_controller
+
+        self._inner = make_controller(name, h0, tol, **options)
+        self._inner_settings = self._inner.describe()
+
+    def describe(self) -> dict[str, Any]:
+        return {**super().describe(), "inner_settings": self._inner_settings}
+
+
+class Switching(_Wrapping):
     """A fixed step while the dynamics are smooth, an adaptive controller otherwise (5.1).
 
     Starts adaptive. After ``calm`` accepted adaptive steps without a rejection by more than 2×
@@ -89,11 +105,8 @@ class Switching(Controller):
 
     def __init__(self, tol: float = 1e-4, adaptive: str = "pc", step: float | None = None,
                  calm: int = 20, h0: float | None = None, **options: Any) -> None:
-        from cosimstep.controllers import make_controller
-
         self.tol, self.adaptive, self.step, self.calm = float(tol), adaptive, step, int(calm)
-        self._inner = make_controller(adaptive, h0, tol, **options)
-        self._inner_settings = self._inner.describe()  # its options, before a run moves them
+        self._wrap(adaptive, h0, tol, options)
         self._band = StepPolicy(tol=float(tol))
         self._fixed: float | None = None
         self._recent: list[float] = []
@@ -136,7 +149,7 @@ class Switching(Controller):
         return Attempt(y, False, h * max(0.2, 0.9 * ratio ** (-1.0 / (q + 1))), ratio)
 
 
-class AdaptiveTolerance(Controller):
+class AdaptiveTolerance(_Wrapping):
     """A tolerance that follows the curvature (thesis 5.1/5.3).
 
     The tolerance handed to an error-controlled controller is scaled by ``1/ρ`` limited to
@@ -150,14 +163,10 @@ class AdaptiveTolerance(Controller):
 
     def __init__(self, tol: float = 1e-4, inner: str = "pc", relax: float = 10.0,
                  h0: float | None = None, **options: Any) -> None:
-        from cosimstep.controllers import make_controller
-
         if not relax >= 1:
             raise ValueError("`relax` must be >= 1")
         self.tol, self.inner, self.relax = float(tol), inner, float(relax)
-        self._inner = make_controller(inner, h0, tol, **options)
-        # its options, recorded before a run moves its tolerance step by step
-        self._inner_settings = self._inner.describe()
+        self._wrap(inner, h0, tol, options)
         self._mean: np.ndarray | None = None
         self._n = 0
 
