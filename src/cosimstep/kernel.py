@@ -44,6 +44,18 @@ class Budget:
     def __bool__(self) -> bool:
         return self.max_wall is not None or self.max_calls is not None
 
+    def after(self, calls: int) -> Budget | None:
+        """What is left for a further run once ``calls`` are spent (the wall clock runs on
+        from this budget's start), or ``None`` if nothing is."""
+        left = Budget.__new__(Budget)
+        left.max_wall, left._start = self.max_wall, self._start
+        left.max_calls = None if self.max_calls is None else self.max_calls - calls
+        try:
+            left.check(0)
+        except BudgetExceeded:
+            return None
+        return left
+
     def check(self, calls: int) -> None:
         """Raise :class:`BudgetExceeded` if ``calls`` or the wall time since the start is over."""
         if self.max_calls is not None and calls >= self.max_calls:

@@ -83,6 +83,12 @@ class SimulationResult:
     loops: dict[str, Any] | None = None
     """Algebraic loops (solved at every communication point): solves, evaluations of the
     loops' models and the largest residual; ``None`` without loops."""
+    tightened: dict[str, Any] | None = None
+    """The run this one repeats at a tighter tolerance because its own estimate exceeded
+    twice its ``tol`` (``simulate(tighten=True)``, :mod:`cosimstep.tighten`): its ``tol``, its
+    ``error_estimate`` and its ``calls`` (not in :attr:`calls`); with ``repeat`` (the repeat's
+    summary) when the repeat did not end ok and this is the first run's result. ``None``: the
+    run was not repeated."""
     traceback: str | None = field(default=None, repr=False)
     """A failed run's traceback, the sub-model's own exception included (``run -v`` prints
     it; the message names the model, the time and the reason)."""
@@ -123,6 +129,7 @@ class SimulationResult:
         out["events_late"] = sum(e.late for e in self.events)  # state events not located
         out["error_estimate"] = self.error_estimate
         out["error_estimate_calls"] = self.estimate_calls
+        out["tightened"] = self.tightened
         if self.error is not None:
             out["error"] = self.error.to_dict()
         out["models"] = {n: m.to_dict() for n, m in self.models.items()}

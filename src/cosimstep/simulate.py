@@ -8,17 +8,21 @@ and Ctrl-C become a result with a status and the values computed so far — neve
 
 from __future__ import annotations
 
+import copy
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from cosimstep.controllers import Controller
+from cosimstep.estimate import FACTOR
 from cosimstep.kernel import Budget
 from cosimstep.masters import MasterOptions, trapezoidal_refusal
 from cosimstep.reference import Reference
 from cosimstep.result import ModelStats, SimulationResult
 from cosimstep.run import Run, scheme_for
 from cosimstep.system import System
+from cosimstep.tighten import note, scaled, tightening
 
 
 def simulate(
@@ -42,6 +46,7 @@ def simulate(
     checkpoint_every: float | None = None,
     checkpoint_steps: int | None = None,
     resume: int | None = None,
+    tighten: bool = True,
 ) -> SimulationResult:
     """Co-simulate ``system`` from ``t0`` to ``until``.
 
@@ -90,31 +95,81 @@ def simulate(
         The id of a run in ``store`` to continue from its newest checkpoint, with the same
         system and settings; it keeps its id, and ends as one run that had never stopped. The
         result is the whole run (the points before the checkpoint read back from the store).
+    tighten:
+        Repeat the run once at a tighter tolerance when its own error estimate exceeds twice
+        ``tol`` (controller ``pc``, synchronous masters; :mod:`cosimstep.tighten`): the
+        tolerance reduced by the factor the estimate missed by, at most 1000-fold. The repeat
+        is returned, its message says why, and ``SimulationResult.tightened`` holds the first
+        run's tolerance, estimate and calls (both runs are stored). ``False``: one run,
+        whatever its estimate.
     """
     budget = Budget(max_wall, max_calls)
     problems = estimate_problems(estimate, controller, master, resume)
     if problems:
         raise ValueError("`estimate`: " + "; ".join(f"{what} ({fix})" for what, fix in problems))
-    looser = None
-    if estimate == "rerun":
-        looser = _simulate(system, until, _loosened(controller), master, t0, None, None, name,
-                           None, False, False, None, budget)
     if output_interval is not None and not (math.isfinite(output_interval)
                                             and output_interval > 0):
         raise ValueError(f"`output_interval` must be positive, got {output_interval}")
     output = (output_interval, output_steps) if output_interval is not None else None
-    checkpoints = None
-    if checkpoint_every is not None or checkpoint_steps is not None:
-        from cosimstep.checkpoint import Checkpoints
-
-        checkpoints = Checkpoints(checkpoint_every, checkpoint_steps)
-    if resume is not None and (store is None or output is not None or looser is not None):
+    if resume is not None and (store is None or output is not None or estimate == "rerun"):
         raise ValueError("`resume` continues a run in `store` that stored every point: give "
                          "`store`, and no `output_interval` or re-run estimate")
-    return _simulate(system, until, controller, master, t0, reference, store, name, config,
-                     progress, raise_on_failure, looser, budget, output,
-                     checkpoints=checkpoints, resume=resume,
-                     richardson=estimate == "richardson")
+    multirate = master is not None and master.name == "multirate"
+    # the controller as given, before a run moves it: what a repeat starts from
+    pristine = copy.deepcopy(controller) if tighten and tightening(
+        "ok", math.inf, controller, multirate) is not None else None
+
+    def once(ctrl: Controller, spent: Budget, resumed: int | None, run_config: dict | None,
+             amend: Callable[[SimulationResult], None] | None) -> SimulationResult:
+        looser = None
+        if estimate == "rerun":
+            looser = _simulate(system, until, scaled(ctrl, FACTOR), master, t0, None, None,
+                               name, None, False, False, None, spent)
+        checkpoints = None
+        if checkpoint_every is not None or checkpoint_steps is not None:
+            from cosimstep.checkpoint import Checkpoints
+
+            checkpoints = Checkpoints(checkpoint_every, checkpoint_steps)
+        return _simulate(system, until, ctrl, master, t0, reference, store, name, run_config,
+                         progress, raise_on_failure, looser, spent, output,
+                         checkpoints=checkpoints, resume=resumed,
+                         richardson=estimate == "richardson", amend=amend)
+
+    first = once(controller, budget, resume, config, None)
+    factor = tightening(first.status, first.error_estimate, controller, multirate) \
+        if pristine is not None else None
+    if factor is None:
+        return first
+    return _repeat(first, factor, pristine, budget, config, once)
+
+
+def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget: Budget,
+            config: dict[str, Any] | None, once: Callable[..., SimulationResult]
+            ) -> SimulationResult:
+    """The run again at ``factor`` × its tolerances (:mod:`cosimstep.tighten`); the first
+    run's result where the repeat cannot improve on it (a budget spent, a failure)."""
+    tol = pristine.policy.tol  # type: ignore[attr-defined]
+    assert first.error_estimate is not None
+    spent = first.calls_total + first.estimate_calls
+    facts = {"tol": tol, "error_estimate": first.error_estimate, "calls": spent}
+    why = note(tol, first.error_estimate, spent, factor)
+    remaining = budget.after(spent)
+    if remaining is None:
+        first.message += f"; not {why}: the budget is spent"
+        return first
+
+    def amend(result: SimulationResult) -> None:
+        result.message += f"; {why}"
+        result.tightened = facts
+
+    second = once(scaled(pristine, factor), remaining, None,
+                  {**(config or {}), "tightened": facts}, amend)
+    if second.status == "ok":
+        return second
+    first.message += (f"; a repeat at tol {tol * factor:.3g} ended {second.status} "
+                      f"({second.message}): this is the first run's result")
+    first.tightened = {**facts, "repeat": second.summary()}
+    return first
 
 
 ESTIMATES = ("sum", "rerun", "richardson")
@@ -155,28 +210,16 @@ def estimate_problems(estimate: str, controller: Controller, master: MasterOptio
     return out
 
 
-def _loosened(controller: Controller) -> Controller:
-    """A fresh copy of ``controller`` at :data:`~cosimstep.estimate.FACTOR` × its tolerance."""
-    import copy
-
-    from cosimstep.estimate import FACTOR
-
-    twin = copy.deepcopy(controller)
-    policy = twin.policy  # type: ignore[attr-defined]
-    policy.tol *= FACTOR
-    policy.atol = None if policy.atol is None else policy.atol * FACTOR
-    policy.rtol = None if policy.rtol is None else policy.rtol * FACTOR
-    return twin
-
-
 def _simulate(system: System, until: float, controller: Controller,
               master: MasterOptions | None, t0: float, reference: Reference | None,
               store: str | Path | None, name: str, config: dict[str, Any] | None,
               progress: bool | None, raise_on_failure: bool,
               looser: SimulationResult | None, budget: Budget | None = None,
               output: tuple[float, bool] | None = None, *, checkpoints: Any = None,
-              resume: int | None = None, richardson: bool = False) -> SimulationResult:
-    """:func:`simulate` once; ``looser`` is the run at 10× the tolerance for ``"rerun"``."""
+              resume: int | None = None, richardson: bool = False,
+              amend: Callable[[SimulationResult], None] | None = None) -> SimulationResult:
+    """:func:`simulate` once; ``looser`` is the run at 10× the tolerance for ``"rerun"``;
+    ``amend(result)`` runs once the estimate is in, before the store's summary is written."""
     if not (math.isfinite(until) and until > t0):
         raise ValueError(f"`until` ({until}) must be finite and after t0 ({t0})")
     master = master or MasterOptions()
@@ -200,8 +243,13 @@ def _simulate(system: System, until: float, controller: Controller,
         raise ValueError(f"cannot resume run {resume}: {scheme.resumable()}")
     run = Run(scheme, store=store, name=name, settings=settings, progress=progress,
               budget=budget, output=output, checkpoints=checkpoints, resume=resume)
-    return run.execute(reference, lambda r: _rerun_estimate(r, looser, controller, events),
-                       raise_on_failure=raise_on_failure)
+
+    def finish(result: SimulationResult) -> None:
+        _rerun_estimate(result, looser, controller, events)
+        if amend is not None:
+            amend(result)
+
+    return run.execute(reference, finish, raise_on_failure=raise_on_failure)
 
 
 def _rerun_estimate(result: SimulationResult, looser: SimulationResult | None,

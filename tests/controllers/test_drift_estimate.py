@@ -217,7 +217,8 @@ def test_adaptive_tol_starts_each_run_at_the_run_s_tolerance() -> None:
 
 
 # measured (pc, gauss-seidel order 2, the suite's 12 s): without the tightening 15.5 x tol in
-# 752 calls, estimate 2.9 x tol; with it 7.2 x tol in 852 calls
+# 752 calls, estimate 2.9 x tol; with it 7.2 x tol in 852 calls (one run each: the repeat of
+# a run past its tolerance, which would act on the first, is off)
 def test_van_der_pol_stays_within_ten_times_the_tolerance_by_its_own_estimate() -> None:
     problem = suite.get("van_der_pol")
     tol, runs = 1e-4, {}
@@ -225,7 +226,8 @@ def test_van_der_pol_stays_within_ten_times_the_tolerance_by_its_own_estimate() 
         system, reference = problem.build()
         runs[overrun] = cs.simulate(system, problem.until,
                                     cs.make_controller("pc", None, tol, overrun=overrun),
-                                    cs.MasterOptions("gauss-seidel", 2), reference=reference)
+                                    cs.MasterOptions("gauss-seidel", 2), reference=reference,
+                                    tighten=False)
     assert runs[False].error.max_scaled / tol > 10.0  # what it is for
     assert runs[False].error_estimate > tol  # and what the run knew, and said:
     assert runs[False].status == "ok" and runs[False].message == (

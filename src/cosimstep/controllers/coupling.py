@@ -58,10 +58,11 @@ class _PolicyController(Controller):
     needs_rollback = True
 
     measures_memory = False  # whether it probes the error memory (``trend``, ``unbiased``)
-    # whether its own estimate may tighten the step control (StepPolicy.overrun): only `pc`'s
+    # whether its own estimate may act on the run — tighten the step control
+    # (StepPolicy.overrun) or repeat a run past its tolerance (cosimstep.tighten): only `pc`'s
     # is measured within 0.2-5x the error; `corrector` and `embedded` estimate the result they
     # discard (50-100x the error of the kept one), so past tol they would only spend calls
-    overrun_gate = False
+    trusted_estimate = False
 
     def __init__(self, tol: float = 1e-4, h0: float | None = None, **policy: Any) -> None:
         self.policy = StepPolicy(tol=float(tol), **policy)
@@ -123,7 +124,7 @@ class _PolicyController(Controller):
                         math.exp(-h / self.policy.memory), jumping)
         self.error_estimate = self._drift.value
         policy = self.policy
-        if self.overrun_gate and policy.overrun and policy.global_error \
+        if self.trusted_estimate and policy.overrun and policy.global_error \
                 and not policy.feedback and self._drift.value > self._budget:
             # the run's own estimate says the tolerance is spent (StepPolicy.overrun)
             policy.propagation = max(1.0, self._drift.value / self._drift.summed)
@@ -244,7 +245,7 @@ class PredictorCorrector(_PolicyController):
     """
 
     name = "pc"
-    overrun_gate = True
+    trusted_estimate = True
 
     def __init__(self, tol: float = 1e-4, h0: float | None = None, probe_every: int = 20,
                  **policy: Any) -> None:

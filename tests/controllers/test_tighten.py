@@ -1,0 +1,109 @@
+"""A run past its tolerance by its own estimate is repeated once, tighter (cosimstep.tighten).
+
+Measured on the suite's Van der Pol oscillator (pc, Gauss–Seidel, order 2, 12 s): at tol 1e-4
+one run gives 15.5 x tol in 752 calls with its own estimate at 2.91 x tol; the repeat at
+3.44e-5 gives 2.11 x tol in 1,064 calls more. At 1e-3 the estimate is 1.26 x tol, below the
+threshold of 2, and the run stands alone.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import cosimstep as cs
+from cosimstep import suite, tighten
+from cosimstep.cli import _report
+from cosimstep.store import read_run, run_table
+
+
+def _van_der_pol(tol: float, **kwargs) -> cs.SimulationResult:
+    problem = suite.get("van_der_pol")
+    system, reference = problem.build()
+    return cs.simulate(system, problem.until, cs.make_controller("pc", None, tol),
+                       cs.MasterOptions("gauss-seidel", 2), reference=reference, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def alone() -> cs.SimulationResult:
+    """The run at 1e-4 that the default repeats, on its own."""
+    return _van_der_pol(1e-4, tighten=False)
+
+
+def test_a_run_whose_estimate_cannot_vouch_for_its_tolerance_is_repeated_tighter(
+        alone, tmp_path) -> None:
+    tol = 1e-4
+    assert alone.error.max_scaled / tol > 10.0  # the failure the repeat is for
+    ratio = alone.error_estimate / tol
+    assert ratio > tighten.THRESHOLD and alone.tightened is None
+    store = tmp_path / "vdp.db"
+    result = _van_der_pol(tol, store=store)
+    assert result.status == "ok"
+    assert 0.1 <= result.error.max_scaled / tol <= 10.0
+    assert result.error_estimate < tol  # and it says so: no "beyond its tolerance" note
+    assert result.tightened == {"tol": tol, "error_estimate": alone.error_estimate,
+                                "calls": alone.calls_total}
+    assert result.message == (
+        f"completed; repeated at tol {tol / ratio:.3g}: at tol {tol:.3g} the run estimated its "
+        f"own error at {ratio:.3g} x tol, past 2 x tol, where more than 10 x tol cannot be "
+        f"ruled out; {alone.calls_total} calls)")
+    # the repeat is exactly a run at the reduced tolerance: the same calls, the same values
+    direct = _van_der_pol(tol / ratio, tighten=False)
+    assert result.calls == direct.calls
+    np.testing.assert_array_equal(result.values, direct.values)
+    # both runs are stored; the second records why it ran
+    table = run_table(store)
+    assert [r["status"] for r in table] == ["ok", "ok"]
+    first, second = read_run(store, table[0]["id"]), read_run(store, table[1]["id"])
+    assert first.summary["calls_total"] == alone.calls_total
+    assert second.summary["tightened"] == result.tightened
+    assert second.config["tightened"] == result.tightened
+    assert second.config["controller"]["policy"]["tol"] == pytest.approx(tol / ratio)
+
+
+def test_a_run_within_twice_its_tolerance_stands_alone() -> None:
+    tol = 1e-3
+    result, alone = _van_der_pol(tol), _van_der_pol(tol, tighten=False)
+    assert tol < result.error_estimate <= tighten.THRESHOLD * tol
+    assert result.tightened is None and result.calls == alone.calls
+    assert result.message == (f"completed; its own error estimate is "
+                              f"{result.error_estimate / tol:.3g} x tol (tighten tol, or "
+                              "check against a reference)")
+
+
+def test_a_repeat_that_cannot_finish_leaves_the_first_run_s_result(alone) -> None:
+    """A budget the first run fits in and the repeat does not: the first run is the answer,
+    and the message says what became of the repeat."""
+    result = _van_der_pol(1e-4, max_calls=alone.calls_total + 10)
+    assert result.status == "ok" and result.calls == alone.calls
+    np.testing.assert_array_equal(result.values, alone.values)
+    assert "ended timed_out" in result.message and "first run's result" in result.message
+    assert result.tightened["repeat"]["status"] == "timed_out"
+    assert result.tightened["calls"] == alone.calls_total
+
+
+def test_who_is_repeated_and_by_how_much() -> None:
+    pc, corrector = cs.make_controller("pc", None, 1e-3), cs.make_controller("corrector",
+                                                                             None, 1e-3)
+    assert tighten.tightening("ok", 5e-3, pc, multirate=False) == pytest.approx(0.2)
+    assert tighten.tightening("ok", 2e-3, pc, multirate=False) is None  # not past 2 x tol
+    assert tighten.tightening("ok", 1e3, pc, multirate=False) == 1e-3  # at most 1000-fold
+    assert tighten.tightening("ok", 5e-3, pc, multirate=True) is None  # another estimate
+    assert tighten.tightening("ok", 5e-3, corrector, multirate=False) is None  # untrusted
+    assert tighten.tightening("failed", 5e-3, pc, multirate=False) is None
+    assert tighten.tightening("ok", None, pc, multirate=False) is None
+    assert tighten.tightening("ok", math.nan, pc, multirate=False) is None
+    twin = tighten.scaled(cs.make_controller("pc", None, 1e-3, atol=1e-4, rtol=1e-2), 0.1)
+    assert (twin.policy.tol, twin.policy.atol, twin.policy.rtol) == pytest.approx(
+        (1e-4, 1e-5, 1e-3))
+
+
+def test_the_report_names_the_first_run(alone, capsys) -> None:
+    result = _van_der_pol(1e-4)
+    _report(result, as_json=False)
+    out = capsys.readouterr().out
+    assert (f"repeated at a tighter tol: the run at tol 0.0001 estimated "
+            f"{alone.error_estimate / 1e-4:.3g} x tol ({alone.calls_total} calls more, not "
+            "counted above)") in out
