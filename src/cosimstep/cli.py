@@ -440,11 +440,14 @@ def _report(result: SimulationResult, as_json: bool) -> None:
                    f", max |e|/(1+|y|) {e['max_scaled']:.3e}"
                    + (f" at each sub-model's own points ({e['grid_max_scaled']:.3e} on the "
                       "common grid, interpolated between them)" if "grid_max_scaled" in e else ""))
-    if summary.get("tightened") is not None:
-        first = summary["tightened"]
-        click.echo(f"repeated at a tighter tol: the run at tol {first['tol']:.3g} estimated "
-                   f"{first['error_estimate'] / first['tol']:.3g} x tol ({first['calls']} calls "
+    other = summary.get("tightened")
+    if other is not None and other["run"] == "first":
+        click.echo(f"repeated at a tighter tol: the run at tol {other['tol']:.3g} estimated "
+                   f"{other['error_estimate'] / other['tol']:.3g} x tol ({other['calls']} calls "
                    "more, not counted above)")
+    elif other is not None:
+        click.echo(f"a repeat at tol {other['tol']:.3g} ended {other['status']} and was not "
+                   f"kept ({other['calls']} calls more, not counted above)")
     if summary.get("error_estimate") is not None:
         cost = summary["error_estimate_calls"]
         click.echo(f"estimated coupling error (own, no reference; a sub-model's own "

@@ -84,11 +84,12 @@ class SimulationResult:
     """Algebraic loops (solved at every communication point): solves, evaluations of the
     loops' models and the largest residual; ``None`` without loops."""
     tightened: dict[str, Any] | None = None
-    """The run this one repeats at a tighter tolerance because its own estimate exceeded
-    twice its ``tol`` (``simulate(tighten=True)``, :mod:`cosimstep.tighten`): its ``tol``, its
-    ``error_estimate`` and its ``calls`` (not in :attr:`calls`); with ``repeat`` (the repeat's
-    summary) when the repeat did not end ok and this is the first run's result. ``None``: the
-    run was not repeated."""
+    """A run repeated at a tighter tolerance because its own estimate exceeded twice its
+    ``tol`` (``simulate(tighten=True)``, :mod:`cosimstep.tighten`): the *other* run of the
+    pair, whose calls are not in :attr:`calls` — ``run`` is ``"first"`` (this result is the
+    repeat) or ``"repeat"`` (the repeat was not kept: it failed, or estimated its own error
+    higher; with its ``status``), with its ``tol``, ``error_estimate`` and ``calls``.
+    ``None``: the run was not repeated."""
     traceback: str | None = field(default=None, repr=False)
     """A failed run's traceback, the sub-model's own exception included (``run -v`` prints
     it; the message names the model, the time and the reason)."""

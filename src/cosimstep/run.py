@@ -328,7 +328,7 @@ def _say_beyond_tolerance(result: SimulationResult, controller: Any) -> None:
     tol = getattr(controller, "tol", None)
     if tol is None:
         tol = getattr(getattr(controller, "policy", None), "tol", None)
-    if result.tightened is not None:
+    if result.tightened is not None and result.tightened["run"] == "first":
         tol = result.tightened["tol"]  # a repeat at a tighter tol: judged by the one asked for
     estimate = result.error_estimate
     if result.status == "ok" and isinstance(tol, float) and estimate is not None \

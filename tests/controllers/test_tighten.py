@@ -43,7 +43,8 @@ def test_a_run_whose_estimate_cannot_vouch_for_its_tolerance_is_repeated_tighter
     assert result.status == "ok"
     assert 0.1 <= result.error.max_scaled / tol <= 10.0
     assert result.error_estimate < tol  # and it says so: no "beyond its tolerance" note
-    assert result.tightened == {"tol": tol, "error_estimate": alone.error_estimate,
+    assert result.tightened == {"run": "first", "tol": tol,
+                                "error_estimate": alone.error_estimate,
                                 "calls": alone.calls_total}
     assert result.message == (
         f"completed; repeated at tol {tol / ratio:.3g}: at tol {tol:.3g} the run estimated its "
@@ -80,8 +81,32 @@ def test_a_repeat_that_cannot_finish_leaves_the_first_run_s_result(alone) -> Non
     assert result.status == "ok" and result.calls == alone.calls
     np.testing.assert_array_equal(result.values, alone.values)
     assert "ended timed_out" in result.message and "first run's result" in result.message
-    assert result.tightened["repeat"]["status"] == "timed_out"
-    assert result.tightened["calls"] == alone.calls_total
+    assert result.tightened["run"] == "repeat" and result.tightened["status"] == "timed_out"
+    assert 10 <= result.tightened["calls"] < 20  # the budget's rest (checked per attempt)
+
+
+def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result() -> None:
+    """The Brusselator with B = 2.5 (not a suite problem) at 1e-4: the run estimates 2.37 x tol
+    and delivers 6.9 x; repeated at tol / 2.37 it estimates 6.9 x and delivers 42 x. Without a
+    reference the estimates are the only judge, and they pick the first run."""
+    from cosimstep.suite import cycles
+
+    tol, runs = 1e-4, {}
+    for tighten_ in (False, True):
+        system, reference = cycles.brusselator(1.0, 2.5)
+        runs[tighten_] = cs.simulate(system, 20.0, cs.make_controller("pc", None, tol),
+                                     cs.MasterOptions("gauss-seidel", 2), reference=reference,
+                                     tighten=tighten_)
+    alone, result = runs[False], runs[True]
+    assert alone.error_estimate > tighten.THRESHOLD * tol
+    assert result.calls == alone.calls and result.error_estimate == alone.error_estimate
+    assert result.error.max_scaled / tol <= 10.0
+    other = result.tightened
+    assert other["run"] == "repeat" and other["status"] == "ok"
+    assert other["error_estimate"] > alone.error_estimate and other["calls"] > 0
+    assert result.message.endswith(
+        f"; a repeat at tol {other['tol']:.3g} estimated its own error higher, at "
+        f"{other['error_estimate'] / tol:.3g} x tol: this is the first run's result")
 
 
 def test_who_is_repeated_and_by_how_much() -> None:
