@@ -22,7 +22,7 @@ from cosimstep.reference import Reference
 from cosimstep.result import ModelStats, SimulationResult
 from cosimstep.run import Run, scheme_for
 from cosimstep.system import System
-from cosimstep.tighten import note, scaled, tightening
+from cosimstep.tighten import may_repeat, note, scaled, tightening
 
 
 def simulate(
@@ -117,11 +117,12 @@ def simulate(
                          "`store`, and no `output_interval` or re-run estimate")
     multirate = master is not None and master.name == "multirate"
     # the controller as given, before a run moves it: what a repeat starts from
-    pristine = copy.deepcopy(controller) if tighten and tightening(
-        "ok", math.inf, controller, multirate) is not None else None
+    pristine = copy.deepcopy(controller) if tighten and may_repeat(controller, multirate) \
+        else None
 
     def once(ctrl: Controller, spent: Budget, resumed: int | None, run_config: dict | None,
-             amend: Callable[[SimulationResult], None] | None) -> SimulationResult:
+             amend: Callable[[SimulationResult], None] | None,
+             raising: bool = raise_on_failure) -> SimulationResult:
         looser = None
         if estimate == "rerun":
             looser = _simulate(system, until, scaled(ctrl, FACTOR), master, t0, None, None,
@@ -132,7 +133,7 @@ def simulate(
 
             checkpoints = Checkpoints(checkpoint_every, checkpoint_steps)
         return _simulate(system, until, ctrl, master, t0, reference, store, name, run_config,
-                         progress, raise_on_failure, looser, spent, output,
+                         progress, raising, looser, spent, output,
                          checkpoints=checkpoints, resume=resumed,
                          richardson=estimate == "richardson", amend=amend)
 
@@ -165,8 +166,9 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
         result.message += f"; {why}"
         result.tightened = facts
 
+    # a failing repeat is reported, not raised: the first run is a whole result to fall back on
     second = once(scaled(pristine, factor), remaining, None,
-                  {**(config or {}), "tightened": facts}, amend)
+                  {**(config or {}), "tightened": facts}, amend, False)
     worse = second.error_estimate is not None and second.error_estimate > first.error_estimate
     if second.status == "ok" and not worse:
         return second

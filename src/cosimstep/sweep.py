@@ -155,8 +155,11 @@ def run_point(system: str, point: Mapping[str, float], options: Mapping[str, Any
     summary["store"] = store
     try:
         result = _simulate(system, point, options, store)
+        # a run repeated at a tighter tol (cosimstep.tighten) cost the pair's calls: the
+        # point's work is both (`calls` stays the kept run's, per sub-model)
+        other = (result.tightened or {}).get("calls", 0)
         summary.update(status=result.status, message=result.message, calls=result.calls,
-                       calls_total=result.calls_total, steps=result.steps_accepted,
+                       calls_total=result.calls_total + other, steps=result.steps_accepted,
                        error=None if result.error is None else result.error.max_scaled,
                        rmse=None if result.error is None else result.error.rmse,
                        error_estimate=result.error_estimate, step_min=step_min(result),

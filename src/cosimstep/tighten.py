@@ -42,16 +42,21 @@ MOST = 1e3
 """The repeat's tolerance is at least the run's / ``MOST`` (three decades)."""
 
 
+def may_repeat(controller: Any, multirate: bool) -> bool:
+    """Whether a run of ``controller`` is ever repeated: its estimate is one measured within
+    ``SPREAD`` of the error (``pc``'s), under a synchronous master."""
+    return getattr(controller, "policy", None) is not None and not multirate \
+        and getattr(controller, "trusted_estimate", False)
+
+
 def tightening(status: str, estimate: float | None, controller: Any,
                multirate: bool) -> float | None:
     """The factor to multiply the tolerances by for the repeat, or ``None`` for no repeat.
 
     ``status``, ``estimate``: the finished run's; ``controller``: the one it ran with."""
-    policy = getattr(controller, "policy", None)
-    if status != "ok" or estimate is None or policy is None or multirate \
-            or not getattr(controller, "trusted_estimate", False):
+    if status != "ok" or estimate is None or not may_repeat(controller, multirate):
         return None
-    ratio = estimate / policy.tol
+    ratio = estimate / controller.policy.tol
     if not ratio > THRESHOLD:
         return None
     return max(1.0 / ratio, 1.0 / MOST)
@@ -74,4 +79,4 @@ def note(tol: float, estimate: float, calls: int, factor: float) -> str:
             f"{BAND:g} x tol cannot be ruled out; {calls} calls)")
 
 
-__all__ = ["BAND", "MOST", "SPREAD", "THRESHOLD", "note", "scaled", "tightening"]
+__all__ = ["BAND", "MOST", "SPREAD", "THRESHOLD", "may_repeat", "note", "scaled", "tightening"]

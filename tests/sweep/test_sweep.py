@@ -244,3 +244,23 @@ def test_points_written_out_each_with_its_own_step_and_end(tmp_path, examples) -
     with pytest.raises(Exception, match="l9"):
         sweep(system, points=[{"l2": 1.0}, {"l9": 2.0}], out=tmp_path / "x.db")
     assert not (tmp_path / "x.db").exists()
+
+
+def test_a_point_repeated_at_a_tighter_tol_counts_both_runs_calls(monkeypatch) -> None:
+    """A run the default repeated (cosimstep.tighten) cost its pair's calls: a work-precision
+    study reads ``calls_total`` as the point's work."""
+    import importlib
+    from types import SimpleNamespace
+
+    module = importlib.import_module("cosimstep.sweep")  # (the package exports a function so)
+    kept = SimpleNamespace(models={}, status="ok", message="completed; repeated at tol 3e-05: ...",
+                           calls={"a": 500, "b": 500}, calls_total=1000, steps_accepted=200,
+                           error=None, error_estimate=6e-5, tightened={"run": "first",
+                                                                      "calls": 752},
+                           step_sizes=np.array([0.01]), names=[], values=np.zeros((1, 0)))
+    monkeypatch.setattr(module, "_simulate", lambda *args: kept)
+    summary = module.run_point("x.toml", {}, {})
+    assert summary["status"] == "ok", summary["message"]
+    assert summary["calls_total"] == 1752 and summary["calls"] == {"a": 500, "b": 500}
+    kept.tightened = None
+    assert module.run_point("x.toml", {}, {})["calls_total"] == 1000
