@@ -65,6 +65,8 @@ class SimulationResult:
     wall_s: float
     time_in_models: dict[str, float]
     store: str | None = None
+    run_id: int | None = None
+    """The run's id in :attr:`store` (``cosimstep runs``, :func:`~cosimstep.store.read_run`)."""
     error: ErrorReport | None = None
     reference: np.ndarray | None = field(default=None, repr=False)
     models: dict[str, ModelStats] = field(default_factory=dict)
@@ -125,6 +127,7 @@ class SimulationResult:
             "wall_s": self.wall_s,
             "master_overhead_s": max(self.wall_s - sum(self.time_in_models.values()), 0.0),
             "store": self.store,
+            "run_id": self.run_id,
         }
         out["events"] = [e.to_dict() for e in self.events]
         out["events_late"] = sum(e.late for e in self.events)  # state events not located

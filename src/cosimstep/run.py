@@ -649,7 +649,8 @@ class Run:
             units=compiled.output_units, times=out.times, values=out.values, calls=out.calls,
             steps_accepted=out.accepted, steps_rejected=out.rejected, step_sizes=out.steps,
             wall_s=wall, time_in_models=out.time_in_models,
-            store=str(self.store) if self.store is not None else None, error=err,
+            store=str(self.store) if self.store is not None else None,
+            run_id=None if sink is None else sink.run_id, error=err,
             reference=ref_values, models=out.models, error_estimate=out.error_estimate,
             estimate_calls=out.estimate_calls, events=out.events,
             coupling=self._coupling_stats(), loops=self._loop_stats())

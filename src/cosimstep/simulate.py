@@ -155,7 +155,8 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
     tol = pristine.policy.tol  # type: ignore[attr-defined]
     assert first.error_estimate is not None
     spent = first.calls_total + first.estimate_calls
-    facts = {"run": "first", "tol": tol, "error_estimate": first.error_estimate, "calls": spent}
+    facts = {"run": "first", "tol": tol, "error_estimate": first.error_estimate, "calls": spent,
+             "run_id": first.run_id}
     why = note(tol, first.error_estimate, spent, factor)
     remaining = budget.after(spent)
     if remaining is None:
@@ -174,10 +175,18 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
         return second
     what = f"ended {second.status} ({second.message})" if second.status != "ok" else \
         f"estimated its own error higher, at {second.error_estimate / tol:.3g} x tol"
-    first.message += f"; a repeat at tol {tol * factor:.3g} {what}: this is the first run's result"
+    stored = f" (stored as run {second.run_id})" if second.run_id is not None else ""
+    first.message += (f"; a repeat at tol {tol * factor:.3g}{stored} {what}: this is the first "
+                      "run's result")
     first.tightened = {"run": "repeat", "tol": tol * factor,
                        "error_estimate": second.error_estimate, "status": second.status,
-                       "calls": second.calls_total + second.estimate_calls}
+                       "calls": second.calls_total + second.estimate_calls,
+                       "run_id": second.run_id}
+    if second.run_id is not None and first.run_id is not None and second.store is not None:
+        from cosimstep.store import add_to_message
+
+        add_to_message(second.store, second.run_id, f"; not kept: run {first.run_id}, the "
+                       "first, is the result")
     return first
 
 

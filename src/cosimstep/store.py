@@ -482,6 +482,14 @@ def delete_run(path: str | Path, run_id: int) -> None:
         db.execute("DELETE FROM run WHERE id=?", (run_id,))
 
 
+def add_to_message(path: str | Path, run_id: int, text: str) -> None:
+    """Append ``text`` to a finished run's stored message: what became known after it ended
+    (a repeat at a tighter tol that was not kept, :mod:`cosimstep.tighten`)."""
+    with sqlite3.connect(path) as db:
+        db.execute("UPDATE run SET message = COALESCE(message, '') || ? WHERE id=?",
+                   (text, run_id))
+
+
 def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
     """Read a run (default: the last one) back into NumPy arrays."""
     path = Path(path)

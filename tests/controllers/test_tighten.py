@@ -43,9 +43,11 @@ def test_a_run_whose_estimate_cannot_vouch_for_its_tolerance_is_repeated_tighter
     assert result.status == "ok"
     assert 0.1 <= result.error.max_scaled / tol <= 10.0
     assert result.error_estimate < tol  # and it says so: no "beyond its tolerance" note
+    table = run_table(store)
     assert result.tightened == {"run": "first", "tol": tol,
                                 "error_estimate": alone.error_estimate,
-                                "calls": alone.calls_total}
+                                "calls": alone.calls_total, "run_id": table[0]["id"]}
+    assert result.run_id == table[1]["id"]
     assert result.message == (
         f"completed; repeated at tol {tol / ratio:.3g}: at tol {tol:.3g} the run estimated its "
         f"own error at {ratio:.3g} x tol, past 2 x tol, where more than 10 x tol cannot be "
@@ -55,7 +57,6 @@ def test_a_run_whose_estimate_cannot_vouch_for_its_tolerance_is_repeated_tighter
     assert result.calls == direct.calls
     np.testing.assert_array_equal(result.values, direct.values)
     # both runs are stored; the second records why it ran
-    table = run_table(store)
     assert [r["status"] for r in table] == ["ok", "ok"]
     first, second = read_run(store, table[0]["id"]), read_run(store, table[1]["id"])
     assert first.summary["calls_total"] == alone.calls_total
@@ -85,7 +86,7 @@ def test_a_repeat_that_cannot_finish_leaves_the_first_run_s_result(alone) -> Non
     assert 10 <= result.tightened["calls"] < 20  # the budget's rest (checked per attempt)
 
 
-def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result() -> None:
+def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result(tmp_path) -> None:
     """The Brusselator with B = 2.5 (not a suite problem) at 1e-4: the run estimates 2.37 x tol
     and delivers 6.9 x; repeated at tol / 2.37 it estimates 6.9 x and delivers 42 x. Without a
     reference the estimates are the only judge, and they pick the first run."""
@@ -96,7 +97,7 @@ def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result() ->
         system, reference = cycles.brusselator(1.0, 2.5)
         runs[tighten_] = cs.simulate(system, 20.0, cs.make_controller("pc", None, tol),
                                      cs.MasterOptions("gauss-seidel", 2), reference=reference,
-                                     tighten=tighten_)
+                                     tighten=tighten_, store=tmp_path / f"{tighten_}.db")
     alone, result = runs[False], runs[True]
     assert alone.error_estimate > tighten.THRESHOLD * tol
     assert result.calls == alone.calls and result.error_estimate == alone.error_estimate
@@ -105,8 +106,12 @@ def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result() ->
     assert other["run"] == "repeat" and other["status"] == "ok"
     assert other["error_estimate"] > alone.error_estimate and other["calls"] > 0
     assert result.message.endswith(
-        f"; a repeat at tol {other['tol']:.3g} estimated its own error higher, at "
-        f"{other['error_estimate'] / tol:.3g} x tol: this is the first run's result")
+        f"; a repeat at tol {other['tol']:.3g} (stored as run 2) estimated its own error "
+        f"higher, at {other['error_estimate'] / tol:.3g} x tol: this is the first run's result")
+    # the store says so too: the repeat, the newest run there, is marked as not kept
+    table = run_table(tmp_path / "True.db")
+    assert [r["id"] for r in table] == [1, 2] and result.run_id == 1
+    assert table[1]["message"].endswith("; not kept: run 1, the first, is the result")
 
 
 def test_who_is_repeated_and_by_how_much() -> None:
