@@ -49,7 +49,7 @@ MARK_END = "<!-- adaptive: end -->"
 def _run(problem: str, controller) -> dict:
     spec = load_system(ROOT / "examples" / f"{problem}.toml")
     r = simulate(spec.system, spec.until, controller, spec.master, reference=spec.reference)
-    return {"status": r.status, "calls": r.calls_total, "rejected": r.steps_rejected,
+    return {"status": r.status, "calls": r.calls_spent, "rejected": r.steps_rejected,
             "accepted": r.steps_accepted, "err": r.error.max_abs if r.error else math.nan,
             "steps": r.step_sizes, "message": r.message}
 

@@ -127,7 +127,7 @@ def seed_run(args: tuple[str, str, int, float]) -> SeedRun:
     result = _pump(master, tol, example_control=control == "example", seed=seed)
     (event,) = result.events
     err = result.error.max_scaled / tol if result.status == "ok" else float("inf")
-    return master, control, seed, tol, event.t, err, result.calls_total
+    return master, control, seed, tol, event.t, err, result.calls_spent
 
 
 def seed_rows(runs: list[SeedRun]) -> list[str]:

@@ -60,7 +60,7 @@ def _run(path: Path, master: str, controller, until: float | None = None) -> dic
     if r.reference is not None:
         scaled = _scaled_error(r, [n for n in r.names if n in spec.reference.mapping])
     return {"status": r.status, "message": r.message, "calls": dict(r.calls),
-            "total": r.calls_total, "err": r.error.max_abs if r.error else math.nan,
+            "total": r.calls_spent, "err": r.error.max_abs if r.error else math.nan,
             "scaled": scaled,
             "models": {n: (m.accepted, m.rejected, m.corrections) for n, m in r.models.items()}}
 

@@ -128,8 +128,14 @@ def _tightened(job: dict, problem: Any, master: MasterOptions, r: Any,
     if factor is None:
         return r, estimate, controller, None
     pristine = make_controller("pc", None, job["tol"], **job.get("options", {}))
-    r2, estimate2, controller2 = _once(job, problem, scaled(pristine, factor), master)
-    if r2.status == "ok" and not (estimate2 is not None and estimate2 > estimate):
+    signal.setitimer(signal.ITIMER_REAL, TIME_LIMIT)  # the repeat has a time limit of its own
+    try:
+        r2, estimate2, controller2 = _once(job, problem, scaled(pristine, factor), master)
+    except RunTimeout:
+        return r, estimate, controller, {"run": "repeat", "tol": job["tol"] * factor,
+                                         "error_estimate": None, "status": "timeout",
+                                         "calls": 0, "per_model": {n: 0 for n in r.calls}}
+    if r2.status == "ok" and estimate2 is not None and estimate2 <= estimate:
         return r2, estimate2, controller2, {"run": "first", "tol": job["tol"],
                                             "error_estimate": estimate,
                                             "calls": r.calls_total, "per_model": dict(r.calls)}
@@ -162,7 +168,9 @@ def pair_estimates(adaptive: list[dict]) -> None:
     by_key = {(r["problem"], r["kind"], r["tol"]): r for r in adaptive}
     for r in adaptive:
         looser = by_key.get((r["problem"], r["kind"], r["tol"] * FACTOR))
-        if looser is None or not _ok(r) or not _ok(looser):
+        # a run repeated at a tighter tol is no longer a run at 10x its partner's tol
+        if looser is None or not _ok(r) or not _ok(looser) or r.get("tightened") \
+                or looser.get("tightened"):
             continue
         run, other = (SimpleNamespace(t_end=x["t_end"], models={
             n: SimpleNamespace(times=t, values=v) for n, (t, v) in x["points"].items()})
@@ -222,7 +230,8 @@ def problem_section(name: str, rows: list[dict], line: list[dict]) -> list[str]:
             f"{r['status']}, repeated (first run: estimate {other['error_estimate'] / r['tol']:.3g}"
             f" × tol, {other['calls']} calls)" if other["run"] == "first" else
             f"{r['status']}, repeat not kept (at tol {other['tol']:.3g}: {other['status']}, "
-            f"estimate {other['error_estimate'] / r['tol']:.3g} × tol, {other['calls']} calls)")
+            f"estimate {_g((other['error_estimate'] or math.nan) / r['tol'], '.3g')} × tol, "
+            f"{other['calls']} calls)")
         head = f"| {r['tol']:g} | {r['kind']} | {status} |"
         if "calls" not in r:
             out.append(f"{head} | | | | | | | | | {_g(r['wall'], '.1f')} |")

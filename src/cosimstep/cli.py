@@ -90,8 +90,9 @@ def main() -> None:
               "(error_estimate).")
 @click.option("--no-tighten", is_flag=True, help="One run, whatever its own estimate says "
               "(without it, pc under gauss-seidel or jacobi repeats a run whose estimate "
-              "exceeds 2 x TOL once at a tighter TOL; both runs are stored, --json gives the "
-              "first one's tol, estimate and calls as `tightened`).")
+              "exceeds 2 x TOL once at a tighter TOL, kept unless it failed or estimates "
+              "itself no better; both runs are stored, --json describes the other one as "
+              "`tightened`).")
 @click.option("--estimate", type=click.Choice(["sum", "rerun", "richardson"]), default="sum",
               show_default=True,
               help="How an adaptive run estimates its own global error (error_estimate): sum "
@@ -446,8 +447,11 @@ def _report(result: SimulationResult, as_json: bool) -> None:
                    f"{other['error_estimate'] / other['tol']:.3g} x tol ({other['calls']} calls "
                    "more, not counted above)")
     elif other is not None:
-        click.echo(f"a repeat at tol {other['tol']:.3g} ended {other['status']} and was not "
-                   f"kept ({other['calls']} calls more, not counted above)")
+        how = f"estimated its own error at {other['error_estimate']:.3g}, no lower than this " \
+            "run's" if other["status"] == "ok" and other["error_estimate"] is not None \
+            else f"ended {other['status']}"
+        click.echo(f"a repeat at tol {other['tol']:.3g} {how} and was not kept "
+                   f"({other['calls']} calls more, not counted above)")
     if summary.get("error_estimate") is not None:
         cost = summary["error_estimate_calls"]
         click.echo(f"estimated coupling error (own, no reference; a sub-model's own "
@@ -496,6 +500,9 @@ def validate(system: str) -> None:
 @click.option("--estimate", type=click.Choice(["sum", "rerun", "richardson"]),
               help="How every adaptive run estimates its own error (see `run --help`; "
               "column error_estimate).")
+@click.option("--no-tighten", "tighten", flag_value=False, default=None,
+              help="One run per point, whatever its own estimate says (see `run --help`; "
+              "without it a repeated run's calls_total counts both runs).")
 @click.option("--workers", type=click.IntRange(1), help="Worker processes of the local Dask "
               "cluster (default: one per core).")
 @click.option("--scheduler", help="Address of an existing Dask scheduler "
@@ -711,7 +718,7 @@ def demo(which: str, out: str) -> None:
     click.echo(f"{'run':26s} {'status':8s} {'calls':>7s} {'max error':>10s} {'wall s':>7s}")
     for run in runs:
         r = run.result
-        click.echo(f"{run.label:26s} {r.status:8s} {r.calls_total:7d} "
+        click.echo(f"{run.label:26s} {r.status:8s} {r.calls_spent:7d} "
                    f"{r.error.max_scaled if r.error else float('nan'):10.2e} {r.wall_s:7.2f}")
     for run in runs:
         if run.result.error is not None and run.result.error.grid_max_scaled is not None:

@@ -76,7 +76,7 @@ def plot_demo(runs: list[DemoRun], path: Path) -> Path:
                      "against adaptive steps at tol 1e-4", fontsize=10)
     for (run, colour) in zip(runs, colours):
         r = run.result
-        label = f"{run.label}: {r.calls_total} calls, max error {r.error.max_scaled:.1e}"
+        label = f"{run.label}: {r.calls_spent} calls, max error {r.error.max_scaled:.1e}"
         _steps(steps, r, colour, run.label)
         if r.error.grid_max_scaled is None:
             errors.semilogy(r.times[1:], _error(r)[1:], color=colour, lw=1, label=label)

@@ -20,6 +20,7 @@ multi-rate master's last verification may roll sub-models back) and runs again i
 
 from __future__ import annotations
 
+import copy
 import heapq
 import itertools
 import time
@@ -47,8 +48,7 @@ class Budget:
     def after(self, calls: int) -> Budget | None:
         """What is left for a further run once ``calls`` are spent (the wall clock runs on
         from this budget's start), or ``None`` if nothing is."""
-        left = Budget.__new__(Budget)
-        left.max_wall, left._start = self.max_wall, self._start
+        left = copy.copy(self)
         left.max_calls = None if self.max_calls is None else self.max_calls - calls
         try:
             left.check(0)

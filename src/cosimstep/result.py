@@ -104,6 +104,13 @@ class SimulationResult:
     def calls_total(self) -> int:
         return int(sum(self.calls.values()))
 
+    @property
+    def calls_spent(self) -> int:
+        """Every sub-model call the result cost: :attr:`calls_total`, and the other run's too
+        where the run was repeated at a tighter tol (:attr:`tightened`); what a work–precision
+        comparison counts (the estimate's own calls apart, in :attr:`estimate_calls`)."""
+        return self.calls_total + (int(self.tightened["calls"]) if self.tightened else 0)
+
     def __getitem__(self, name: str) -> np.ndarray:
         """Trajectory of an exchanged output, e.g. ``result["bar1.theta"]``."""
         try:
@@ -120,6 +127,7 @@ class SimulationResult:
             "t_end": self.t_end,
             "calls": dict(self.calls),
             "calls_total": self.calls_total,
+            "calls_spent": self.calls_spent,
             "steps_accepted": self.steps_accepted,
             "steps_rejected": self.steps_rejected,
             "h_min": float(steps.min()) if steps.size else None,

@@ -120,20 +120,24 @@ def simulate(
     pristine = copy.deepcopy(controller) if tighten and may_repeat(controller, multirate) \
         else None
 
-    def once(ctrl: Controller, spent: Budget, resumed: int | None, run_config: dict | None,
+    def once(ctrl: Controller, spent: Budget, resumed: int | None,
+             run_config: dict[str, Any] | None,
              amend: Callable[[SimulationResult], None] | None,
-             raising: bool = raise_on_failure) -> SimulationResult:
+             repeat: bool = False) -> SimulationResult:
+        """One run (after its looser twin for ``"rerun"``); a ``repeat`` (:func:`_repeat`)
+        neither raises its failure nor writes checkpoints, which no command line could resume
+        (its settings carry the tighter tol)."""
         looser = None
         if estimate == "rerun":
             looser = _simulate(system, until, scaled(ctrl, FACTOR), master, t0, None, None,
                                name, None, False, False, None, spent)
         checkpoints = None
-        if checkpoint_every is not None or checkpoint_steps is not None:
+        if not repeat and (checkpoint_every is not None or checkpoint_steps is not None):
             from cosimstep.checkpoint import Checkpoints
 
             checkpoints = Checkpoints(checkpoint_every, checkpoint_steps)
         return _simulate(system, until, ctrl, master, t0, reference, store, name, run_config,
-                         progress, raising, looser, spent, output,
+                         progress, raise_on_failure and not repeat, looser, spent, output,
                          checkpoints=checkpoints, resume=resumed,
                          richardson=estimate == "richardson", amend=amend)
 
@@ -149,18 +153,21 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
             config: dict[str, Any] | None, once: Callable[..., SimulationResult]
             ) -> SimulationResult:
     """The run again at ``factor`` × its tolerances (:mod:`cosimstep.tighten`), or the first
-    run's result where the repeat did not improve on it: a budget spent, a failure, or an
-    estimate of its own above the first run's (the only judge there is without a reference;
-    measured: a Brusselator repeated from 2.4 x tol estimated 6.9 x and delivered 42 x)."""
+    run's result where the repeat did not improve on it: a failure, or an estimate of its own
+    not below the first run's (the only judge there is without a reference; measured: a
+    Brusselator repeated from 2.4 x tol estimated 6.9 x and delivered 42 x). No repeat where
+    the budget left could not pay for a run as long as the first. The store says the same:
+    the run that is not the result is marked so (:func:`~cosimstep.store.amend_run`)."""
     tol = pristine.policy.tol  # type: ignore[attr-defined]
     assert first.error_estimate is not None
-    spent = first.calls_total + first.estimate_calls
-    facts = {"run": "first", "tol": tol, "error_estimate": first.error_estimate, "calls": spent,
+    facts = {"run": "first", "tol": tol, "error_estimate": first.error_estimate,
+             "calls": first.calls_total, "estimate_calls": first.estimate_calls,
              "run_id": first.run_id}
-    why = note(tol, first.error_estimate, spent, factor)
-    remaining = budget.after(spent)
-    if remaining is None:
-        first.message += f"; not {why}: the budget is spent"
+    why = note(tol, first.error_estimate, first.calls_total, factor)
+    remaining = budget.after(first.calls_total + first.estimate_calls)
+    if remaining is None or (remaining.max_calls is not None
+                             and remaining.max_calls < first.calls_total):
+        _amend(first, f"; not {why}: the budget left is smaller than this run", None)
         return first
 
     def amend(result: SimulationResult) -> None:
@@ -169,25 +176,32 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
 
     # a failing repeat is reported, not raised: the first run is a whole result to fall back on
     second = once(scaled(pristine, factor), remaining, None,
-                  {**(config or {}), "tightened": facts}, amend, False)
-    worse = second.error_estimate is not None and second.error_estimate > first.error_estimate
-    if second.status == "ok" and not worse:
+                  {**(config or {}), "tightened": facts}, amend, repeat=True)
+    at = f"at tol {tol * factor:.3g}" + (f" (run {second.run_id})" if second.run_id else "")
+    if second.status == "ok" and second.error_estimate is not None \
+            and second.error_estimate <= first.error_estimate:
+        _amend(first, f"; repeated {at}, which is the result", False)
         return second
-    what = f"ended {second.status} ({second.message})" if second.status != "ok" else \
-        f"estimated its own error higher, at {second.error_estimate / tol:.3g} x tol"
-    stored = f" (stored as run {second.run_id})" if second.run_id is not None else ""
-    first.message += (f"; a repeat at tol {tol * factor:.3g}{stored} {what}: this is the first "
-                      "run's result")
+    what = f"ended {second.status} ({second.message.removesuffix(f'; {why}')})" \
+        if second.status != "ok" else "estimated its own error no lower, at " \
+        f"{(second.error_estimate or math.nan) / tol:.3g} x tol"
+    _amend(first, f"; a repeat {at} {what}: this is the first run's result", None)
+    _amend(second, f"; not kept: run {first.run_id}, the first, is the result", False)
     first.tightened = {"run": "repeat", "tol": tol * factor,
                        "error_estimate": second.error_estimate, "status": second.status,
-                       "calls": second.calls_total + second.estimate_calls,
+                       "calls": second.calls_total, "estimate_calls": second.estimate_calls,
                        "run_id": second.run_id}
-    if second.run_id is not None and first.run_id is not None and second.store is not None:
-        from cosimstep.store import add_to_message
-
-        add_to_message(second.store, second.run_id, f"; not kept: run {first.run_id}, the "
-                       "first, is the result")
     return first
+
+
+def _amend(result: SimulationResult, text: str, kept: bool | None) -> None:
+    """Add ``text`` to ``result``'s message, in memory and in its store (marking it as not the
+    result with ``kept = False``)."""
+    result.message += text
+    if result.store is not None and result.run_id is not None:
+        from cosimstep.store import amend_run
+
+        amend_run(result.store, result.run_id, text, kept)
 
 
 ESTIMATES = ("sum", "rerun", "richardson")

@@ -482,12 +482,22 @@ def delete_run(path: str | Path, run_id: int) -> None:
         db.execute("DELETE FROM run WHERE id=?", (run_id,))
 
 
-def add_to_message(path: str | Path, run_id: int, text: str) -> None:
-    """Append ``text`` to a finished run's stored message: what became known after it ended
-    (a repeat at a tighter tol that was not kept, :mod:`cosimstep.tighten`)."""
+def amend_run(path: str | Path, run_id: int, text: str, kept: bool | None = None) -> None:
+    """Append ``text`` to a finished run's stored message (the column and its summary), and
+    with ``kept = False`` mark it as not the result of its call: what became known after it
+    ended (a run repeated at a tighter tol, :mod:`cosimstep.tighten`). A run so marked is
+    passed over where a command reads "the newest run" (:func:`read_run` without an id)."""
     with sqlite3.connect(path) as db:
-        db.execute("UPDATE run SET message = COALESCE(message, '') || ? WHERE id=?",
-                   (text, run_id))
+        row = db.execute("SELECT message, summary_json FROM run WHERE id=?", (run_id,)).fetchone()
+        if row is None:
+            raise LookupError(f"no run {run_id} in {path}")
+        message = (row[0] or "") + text
+        summary = json.loads(row[1]) if row[1] else {}
+        summary["message"] = message
+        if kept is not None:
+            summary["kept"] = kept
+        db.execute("UPDATE run SET message=?, summary_json=? WHERE id=?",
+                   (message, json.dumps(summary, default=float), run_id))
 
 
 def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
@@ -527,8 +537,10 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
 
 
 def _last_run_id(db: sqlite3.Connection, path: Path) -> int:
-    """The newest run's id: what :func:`read_run` reads when not told which run."""
-    row = db.execute("SELECT MAX(id) FROM run").fetchone()
+    """The newest run's id: what :func:`read_run` reads when not told which run — but not a
+    run marked as not kept (:func:`amend_run`), the discarded one of a repeated pair."""
+    row = db.execute("SELECT MAX(id) FROM run WHERE summary_json IS NULL OR summary_json "
+                     "NOT LIKE '%\"kept\": false%'").fetchone()
     if row is None or row[0] is None:
         raise LookupError(f"{path} holds no runs")
     return int(row[0])

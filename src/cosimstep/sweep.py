@@ -156,10 +156,10 @@ def run_point(system: str, point: Mapping[str, float], options: Mapping[str, Any
     try:
         result = _simulate(system, point, options, store)
         # a run repeated at a tighter tol (cosimstep.tighten) cost the pair's calls: the
-        # point's work is both (`calls` stays the kept run's, per sub-model)
-        other = (result.tightened or {}).get("calls", 0)
+        # point's work is both (`calls` stays the kept run's, per sub-model; options
+        # {"tighten": False} for single runs)
         summary.update(status=result.status, message=result.message, calls=result.calls,
-                       calls_total=result.calls_total + other, steps=result.steps_accepted,
+                       calls_total=result.calls_spent, steps=result.steps_accepted,
                        error=None if result.error is None else result.error.max_scaled,
                        rmse=None if result.error is None else result.error.rmse,
                        error_estimate=result.error_estimate, step_min=step_min(result),
@@ -241,6 +241,7 @@ def _simulate(system: str, point: Mapping[str, float], options: Mapping[str, Any
     return simulate(spec.system, spec.until, controller, master, reference=spec.reference,
                     name=spec.name, progress=False, store=store,
                     estimate=options.get("estimate", "sum"),
+                    tighten=options.get("tighten", True),
                     config={"source": system, "point": dict(point), "options": dict(options)})
 
 
@@ -288,10 +289,12 @@ class SweepTable:
 
     def frame(self, keys: Sequence[str] | None = None) -> Any:
         """The runs (those of ``keys``, in that order) as a pandas DataFrame: one column per
-        swept name, then status, message, calls per sub-model (``calls.NAME``), calls_total,
-        steps, error, rmse, error_estimate, step_min, wall_s, store, the sweep's run
-        options as a label (``options``: runs of sweeps with other options share a file), and
-        each output's extremes over the run (``min.NAME``, ``max.NAME``)."""
+        swept name, then status, message, calls per sub-model (``calls.NAME``), calls_total
+        (all the point cost: with a run repeated at a tighter tol, both runs, where
+        ``calls.NAME`` are the kept run's), steps, error, rmse, error_estimate, step_min,
+        wall_s, store, the sweep's run options as a label (``options``: runs of sweeps with
+        other options share a file), and each output's extremes over the run (``min.NAME``,
+        ``max.NAME``)."""
         import pandas as pd
 
         rows = {r[0]: r for r in self._db.execute(
@@ -329,7 +332,8 @@ def sweep(system: str | Path, params: Sequence[str | Axis] = (), *, design_kind:
 
     ``params``: axes (``"l2=0.5,1,2"``, ``"tol=1e-6:1e-3"`` or :class:`Axis`); ``options``:
     ``master``, ``extrapolation``, ``controller``, ``tol``, ``step``, ``until``, ``coupling``,
-    ``estimate`` (how each adaptive run estimates its own error: :func:`~cosimstep.simulate`).
+    ``estimate`` (how each adaptive run estimates its own error: :func:`~cosimstep.simulate`)
+    and ``tighten`` (``False``: no run repeated at a tighter tol, :mod:`cosimstep.tighten`).
     ``points``: the design written out instead of ``params`` (a study whose points are not a
     product of axes: each case with its own step, or ``until`` tied to a length).
     Runs already in ``out`` are not run again. ``workers``: worker processes of the local

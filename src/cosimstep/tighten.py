@@ -22,9 +22,13 @@ accuracy the estimate cannot tell apart from noise (an estimate 1.06 × tol repe
 Only controllers whose estimate was measured within that spread steer by it
 (a controller's ``trusted_estimate``: ``pc``'s), and only under the synchronous masters (the
 multi-rate master's estimate, of what each trajectory's interpolation causes in its consumers,
-is of another kind). The repeat is one: its result is returned whatever its estimate says (the
-message says it), and it is never more than ``MOST`` times tighter — a run whose estimate says
-it missed by a million is better reported than run for days.
+is of another kind). The estimate that decides is the run's ``error_estimate``: the summed one
+by default, the companion's or the re-run's where ``simulate(estimate=...)`` asks for them
+(both measured closer to the error than the sum on the suite). The repeat is one, and it is
+kept only if it ended ok with an estimate of its own no higher than the first run's
+(:func:`cosimstep.simulate._repeat`); where its estimate still exceeds the tolerance asked for
+its message says so; and it is never more than ``MOST`` times tighter — a run whose estimate
+says it missed by a million is better reported than run for days.
 """
 
 from __future__ import annotations
@@ -76,7 +80,7 @@ def note(tol: float, estimate: float, calls: int, factor: float) -> str:
     """What the repeat's message adds: why it ran, and what the first run cost."""
     return (f"repeated at tol {tol * factor:.3g}: at tol {tol:.3g} the run estimated its own "
             f"error at {estimate / tol:.3g} x tol, past {THRESHOLD:g} x tol, where more than "
-            f"{BAND:g} x tol cannot be ruled out; {calls} calls)")
+            f"{BAND:g} x tol cannot be ruled out ({calls} calls)")
 
 
 __all__ = ["BAND", "MOST", "SPREAD", "THRESHOLD", "may_repeat", "note", "scaled", "tightening"]

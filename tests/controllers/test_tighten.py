@@ -46,12 +46,13 @@ def test_a_run_whose_estimate_cannot_vouch_for_its_tolerance_is_repeated_tighter
     table = run_table(store)
     assert result.tightened == {"run": "first", "tol": tol,
                                 "error_estimate": alone.error_estimate,
-                                "calls": alone.calls_total, "run_id": table[0]["id"]}
+                                "calls": alone.calls_total, "estimate_calls": 0,
+                                "run_id": table[0]["id"]}
     assert result.run_id == table[1]["id"]
     assert result.message == (
         f"completed; repeated at tol {tol / ratio:.3g}: at tol {tol:.3g} the run estimated its "
         f"own error at {ratio:.3g} x tol, past 2 x tol, where more than 10 x tol cannot be "
-        f"ruled out; {alone.calls_total} calls)")
+        f"ruled out ({alone.calls_total} calls)")
     # the repeat is exactly a run at the reduced tolerance: the same calls, the same values
     direct = _van_der_pol(tol / ratio, tighten=False)
     assert result.calls == direct.calls
@@ -60,6 +61,8 @@ def test_a_run_whose_estimate_cannot_vouch_for_its_tolerance_is_repeated_tighter
     assert [r["status"] for r in table] == ["ok", "ok"]
     first, second = read_run(store, table[0]["id"]), read_run(store, table[1]["id"])
     assert first.summary["calls_total"] == alone.calls_total
+    assert first.message.endswith(f"; repeated at tol {tol / ratio:.3g} (run 2), which is the "
+                                  "result") and first.summary["kept"] is False
     assert second.summary["tightened"] == result.tightened
     assert second.config["tightened"] == result.tightened
     assert second.config["controller"]["policy"]["tol"] == pytest.approx(tol / ratio)
@@ -77,13 +80,21 @@ def test_a_run_within_twice_its_tolerance_stands_alone() -> None:
 
 def test_a_repeat_that_cannot_finish_leaves_the_first_run_s_result(alone) -> None:
     """A budget the first run fits in and the repeat does not: the first run is the answer,
-    and the message says what became of the repeat."""
-    result = _van_der_pol(1e-4, max_calls=alone.calls_total + 10)
+    and the message says what became of the repeat. A budget that leaves less than the
+    first run's calls starts no repeat at all."""
+    result = _van_der_pol(1e-4, max_calls=2 * alone.calls_total)
     assert result.status == "ok" and result.calls == alone.calls
     np.testing.assert_array_equal(result.values, alone.values)
     assert "ended timed_out" in result.message and "first run's result" in result.message
     assert result.tightened["run"] == "repeat" and result.tightened["status"] == "timed_out"
-    assert 10 <= result.tightened["calls"] < 20  # the budget's rest (checked per attempt)
+    short = _van_der_pol(1e-4, max_calls=alone.calls_total + 10)
+    assert short.calls == alone.calls and short.tightened is None
+    assert short.message.endswith("; not repeated at tol 3.44e-05: at tol 0.0001 the run "
+                                  f"estimated its own error at 2.91 x tol, past 2 x tol, where "
+                                  f"more than 10 x tol cannot be ruled out ({alone.calls_total} "
+                                  "calls): the budget left is smaller than this run")
+    # the budget's rest (checked before each attempt of four calls)
+    assert alone.calls_total <= result.tightened["calls"] < alone.calls_total + 4
 
 
 def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result(tmp_path) -> None:
@@ -106,12 +117,16 @@ def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result(tmp_
     assert other["run"] == "repeat" and other["status"] == "ok"
     assert other["error_estimate"] > alone.error_estimate and other["calls"] > 0
     assert result.message.endswith(
-        f"; a repeat at tol {other['tol']:.3g} (stored as run 2) estimated its own error "
-        f"higher, at {other['error_estimate'] / tol:.3g} x tol: this is the first run's result")
-    # the store says so too: the repeat, the newest run there, is marked as not kept
-    table = run_table(tmp_path / "True.db")
+        f"; a repeat at tol {other['tol']:.3g} (run 2) estimated its own error no lower, at "
+        f"{other['error_estimate'] / tol:.3g} x tol: this is the first run's result")
+    # the store says so too: the repeat, the newest run there, is marked as not kept, and
+    # what reads "the newest run" reads the first
+    db = tmp_path / "True.db"
+    table = run_table(db)
     assert [r["id"] for r in table] == [1, 2] and result.run_id == 1
     assert table[1]["message"].endswith("; not kept: run 1, the first, is the result")
+    assert table[0]["message"] == result.message
+    assert read_run(db).run_id == 1 and read_run(db, 2).summary["kept"] is False
 
 
 def test_who_is_repeated_and_by_how_much() -> None:
