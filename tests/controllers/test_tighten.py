@@ -49,6 +49,8 @@ def test_a_run_whose_estimate_cannot_vouch_for_its_tolerance_is_repeated_tighter
                                 "calls": alone.calls_total, "estimate_calls": 0,
                                 "run_id": table[0]["id"]}
     assert result.run_id == table[1]["id"]
+    assert result.calls_spent == result.calls_total + alone.calls_total
+    assert result.summary()["calls_spent"] == result.calls_spent and alone.calls_spent == 752
     assert result.message == (
         f"completed; repeated at tol {tol / ratio:.3g}: at tol {tol:.3g} the run estimated its "
         f"own error at {ratio:.3g} x tol, past 2 x tol, where more than 10 x tol cannot be "

@@ -250,14 +250,16 @@ def test_a_point_repeated_at_a_tighter_tol_counts_both_runs_calls(monkeypatch) -
     """A run the default repeated (cosimstep.tighten) cost its pair's calls: a work-precision
     study reads ``calls_total`` as the point's work."""
     import importlib
-    from types import SimpleNamespace
+
+    from cosimstep.result import SimulationResult
 
     module = importlib.import_module("cosimstep.sweep")  # (the package exports a function so)
-    kept = SimpleNamespace(models={}, status="ok", message="completed; repeated at tol 3e-05: ...",
-                           calls={"a": 500, "b": 500}, calls_total=1000, steps_accepted=200,
-                           error=None, error_estimate=6e-5, tightened={"run": "first",
-                                                                      "calls": 752},
-                           step_sizes=np.array([0.01]), names=[], values=np.zeros((1, 0)))
+    kept = SimulationResult(status="ok", message="completed; repeated at tol 3e-05: ...",
+                            t_end=1.0, names=[], units=[], times=np.array([0.0, 1.0]),
+                            values=np.zeros((2, 0)), calls={"a": 500, "b": 500},
+                            steps_accepted=200, steps_rejected=0,
+                            step_sizes=np.array([0.5, 0.5]), wall_s=0.1, time_in_models={},
+                            error_estimate=6e-5, tightened={"run": "first", "calls": 752})
     monkeypatch.setattr(module, "_simulate", lambda *args: kept)
     summary = module.run_point("x.toml", {}, {})
     assert summary["status"] == "ok", summary["message"]
