@@ -216,6 +216,19 @@ def _g(x: float | None, fmt: str = ".2e") -> str:
     return "—" if x is None or not math.isfinite(x) else format(x, fmt)
 
 
+def _status_cell(r: dict) -> str:
+    """The run's status, and for a run repeated at a tighter tol the other run of the pair."""
+    other = r.get("tightened")
+    if other is None:
+        return r["status"]
+    estimate = _g((other["error_estimate"] or math.nan) / r["tol"], ".3g")
+    if other["run"] == "first":
+        return (f"{r['status']}, repeated (first run: estimate {estimate} × tol, "
+                f"{other['calls']} calls)")
+    return (f"{r['status']}, repeat not kept (at tol {other['tol']:.3g}: {other['status']}, "
+            f"estimate {estimate} × tol, {other['calls']} calls)")
+
+
 def problem_section(name: str, rows: list[dict], line: list[dict]) -> list[str]:
     p = suite.get(name)
     out = [f"### {name}: {p.title}", "",
@@ -225,14 +238,7 @@ def problem_section(name: str, rows: list[dict], line: list[dict]) -> list[str]:
            "| fixed calls at equal error | wall s |",
            "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: (-r["tol"], list(MASTERS).index(r["kind"]))):
-        other = r.get("tightened")
-        status = r["status"] if other is None else (
-            f"{r['status']}, repeated (first run: estimate {other['error_estimate'] / r['tol']:.3g}"
-            f" × tol, {other['calls']} calls)" if other["run"] == "first" else
-            f"{r['status']}, repeat not kept (at tol {other['tol']:.3g}: {other['status']}, "
-            f"estimate {_g((other['error_estimate'] or math.nan) / r['tol'], '.3g')} × tol, "
-            f"{other['calls']} calls)")
-        head = f"| {r['tol']:g} | {r['kind']} | {status} |"
+        head = f"| {r['tol']:g} | {r['kind']} | {_status_cell(r)} |"
         if "calls" not in r:
             out.append(f"{head} | | | | | | | | | {_g(r['wall'], '.1f')} |")
             out.append(f"|  | | *{r['message'][:110]}* | | | | | | | | | | |")
