@@ -603,7 +603,8 @@ def info(fmu: str, as_json: bool) -> None:
 @click.argument("db", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Figure file (.png, .pdf, .svg).")
-@click.option("--run", "run_id", type=int, help="Run id in the store (default: the last).")
+@click.option("--run", "run_id", type=int, help="Run id in the store (default: the last, "
+              "passing over a run repeated at a tighter tol that was not kept).")
 def plot(db: str, output: str, run_id: int | None) -> None:
     """Plot a stored run: states above, step size below."""
     from cosimstep.plotting import plot_run
@@ -632,7 +633,8 @@ def plot(db: str, output: str, run_id: int | None) -> None:
 @click.argument("db", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output file: .csv, .parquet (needs cosimstep[parquet]) or .mat.")
-@click.option("--run", "run_id", type=int, help="Run id in the store (default: the last).")
+@click.option("--run", "run_id", type=int, help="Run id in the store (default: the last, "
+              "passing over a run repeated at a tighter tol that was not kept).")
 @click.option("--variables", help="Comma-separated outputs (default: all), e.g. bar1.theta.")
 def results(db: str, output: str, run_id: int | None, variables: str | None) -> None:
     """Export a stored run's values (time and one column per output)."""
