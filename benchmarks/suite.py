@@ -134,7 +134,9 @@ def _tightened(job: dict, problem: Any, master: MasterOptions, r: Any,
     except RunTimeout:
         return r, estimate, controller, {"run": "repeat", "tol": job["tol"] * factor,
                                          "error_estimate": None, "status": "timeout",
-                                         "calls": 0, "per_model": {n: 0 for n in r.calls}}
+                                         "calls": None, "per_model": {n: 0 for n in r.calls}}
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
     if r2.status == "ok" and estimate2 is not None and estimate2 <= estimate:
         return r2, estimate2, controller2, {"run": "first", "tol": job["tol"],
                                             "error_estimate": estimate,
@@ -169,8 +171,9 @@ def pair_estimates(adaptive: list[dict]) -> None:
     for r in adaptive:
         looser = by_key.get((r["problem"], r["kind"], r["tol"] * FACTOR))
         # a run repeated at a tighter tol is no longer a run at 10x its partner's tol
-        if looser is None or not _ok(r) or not _ok(looser) or r.get("tightened") \
-                or looser.get("tightened"):
+        if looser is None or not _ok(r) or not _ok(looser) \
+                or (r.get("tightened") or {}).get("run") == "first" \
+                or (looser.get("tightened") or {}).get("run") == "first":
             continue
         run, other = (SimpleNamespace(t_end=x["t_end"], models={
             n: SimpleNamespace(times=t, values=v) for n, (t, v) in x["points"].items()})
@@ -221,12 +224,14 @@ def _status_cell(r: dict) -> str:
     other = r.get("tightened")
     if other is None:
         return r["status"]
-    estimate = _g((other["error_estimate"] or math.nan) / r["tol"], ".3g")
+    estimate = _g(math.nan if other["error_estimate"] is None
+                  else other["error_estimate"] / r["tol"], ".3g")
     if other["run"] == "first":
         return (f"{r['status']}, repeated (first run: estimate {estimate} × tol, "
                 f"{other['calls']} calls)")
+    calls = "?" if other["calls"] is None else other["calls"]  # (a repeat that timed out)
     return (f"{r['status']}, repeat not kept (at tol {other['tol']:.3g}: {other['status']}, "
-            f"estimate {estimate} × tol, {other['calls']} calls)")
+            f"estimate {estimate} × tol, {calls} calls)")
 
 
 def problem_section(name: str, rows: list[dict], line: list[dict]) -> list[str]:

@@ -688,7 +688,8 @@ def list_runs(db: str, delete: int | None, as_json: bool) -> None:
         t_end = f"{r['t_end']:9.4g}" if r["t_end"] is not None else f"{'-':>9s}"
         wall = f"{r['wall_s']:8.2f}" if r["wall_s"] is not None else f"{'-':>8s}"
         click.echo(f"{r['id']:4d}  {r['status']:11s} {t_end} {wall}  {r['created'][:19]}  "
-                   f"{r['system']}")
+                   f"{r['system']}" + (" (not the result of its repeated pair)"
+                                       if r["kept"] == 0 else ""))
 
 
 def _has(module: str) -> bool:

@@ -56,6 +56,13 @@ class Budget:
             return None
         return left
 
+    def affords(self, calls: int, wall: float) -> bool:
+        """Whether this budget could pay for a run of ``calls`` calls and ``wall`` seconds."""
+        if self.max_calls is not None and self.max_calls < calls:
+            return False
+        return self.max_wall is None or \
+            self.max_wall - (time.perf_counter() - self._start) >= wall
+
     def check(self, calls: int) -> None:
         """Raise :class:`BudgetExceeded` if ``calls`` or the wall time since the start is over."""
         if self.max_calls is not None and calls >= self.max_calls:

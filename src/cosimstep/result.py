@@ -89,8 +89,9 @@ class SimulationResult:
     """A run repeated at a tighter tolerance because its own estimate exceeded twice its
     ``tol`` (``simulate(tighten=True)``, :mod:`cosimstep.tighten`): the *other* run of the
     pair, whose calls are not in :attr:`calls` — ``run`` is ``"first"`` (this result is the
-    repeat) or ``"repeat"`` (the repeat was not kept: it failed, or estimated its own error
-    higher; with its ``status``), with its ``tol``, ``error_estimate`` and ``calls``.
+    repeat) or ``"repeat"`` (the repeat was not kept: it failed, or gave no estimate of its
+    own lower than the first run's; with its ``status``), with its ``tol``,
+    ``error_estimate``, ``calls``, ``estimate_calls`` and ``run_id`` in the store.
     ``None``: the run was not repeated."""
     traceback: str | None = field(default=None, repr=False)
     """A failed run's traceback, the sub-model's own exception included (``run -v`` prints
@@ -108,7 +109,8 @@ class SimulationResult:
     def calls_spent(self) -> int:
         """Every sub-model call the result cost: :attr:`calls_total`, and the other run's too
         where the run was repeated at a tighter tol (:attr:`tightened`); what a work–precision
-        comparison counts (the estimate's own calls apart, in :attr:`estimate_calls`)."""
+        comparison counts. The estimates' own calls are apart: this run's in
+        :attr:`estimate_calls`, the other run's in ``tightened["estimate_calls"]``."""
         return self.calls_total + (int(self.tightened["calls"]) if self.tightened else 0)
 
     def __getitem__(self, name: str) -> np.ndarray:

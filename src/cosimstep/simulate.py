@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import copy
 import math
+import sqlite3
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -99,10 +101,12 @@ def simulate(
         Repeat the run once at a tighter tolerance when its own error estimate exceeds twice
         ``tol`` (controller ``pc``, synchronous masters; :mod:`cosimstep.tighten`): the
         tolerance reduced by the factor the estimate missed by, at most 1000-fold. The repeat
-        is returned unless its own estimate is higher than the first run's (or it failed),
-        its message says why, and ``SimulationResult.tightened`` describes the other run: its
-        tolerance, estimate and calls (both runs are stored). ``False``: one run, whatever
-        its estimate.
+        is returned unless it failed or its own estimate is missing or no lower than the
+        first run's; its message says why, ``SimulationResult.tightened`` describes the other
+        run (which, its tolerance, estimate, calls and store id) and ``calls_spent`` counts
+        both. Both runs are stored, the one that is not the result marked so. A budget
+        (``max_calls``, ``max_wall``) covers both, and no repeat starts where what is left
+        could not pay for a run like the first. ``False``: one run, whatever its estimate.
     """
     budget = Budget(max_wall, max_calls)
     problems = estimate_problems(estimate, controller, master, resume)
@@ -146,28 +150,30 @@ def simulate(
         if pristine is not None else None
     if factor is None:
         return first
-    return _repeat(first, factor, pristine, budget, config, once)
+    return _repeat(first, factor, pristine, budget, config, once, raise_on_failure)
 
 
 def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget: Budget,
-            config: dict[str, Any] | None, once: Callable[..., SimulationResult]
-            ) -> SimulationResult:
+            config: dict[str, Any] | None, once: Callable[..., SimulationResult],
+            raise_on_failure: bool) -> SimulationResult:
     """The run again at ``factor`` × its tolerances (:mod:`cosimstep.tighten`), or the first
     run's result where the repeat did not improve on it: a failure, or an estimate of its own
-    not below the first run's (the only judge there is without a reference; measured: a
-    Brusselator repeated from 2.4 x tol estimated 6.9 x and delivered 42 x). No repeat where
-    the budget left could not pay for a run as long as the first. The store says the same:
-    the run that is not the result is marked so (:func:`~cosimstep.store.amend_run`)."""
+    missing or not below the first run's (the only judge there is without a reference;
+    measured: a Brusselator repeated from 2.4 x tol estimated 6.9 x and delivered 42 x). No
+    repeat where the budget left could not pay for a run as long as the first (its calls, its
+    estimate's, its wall time). The store says the same: the run that is not the result is
+    marked so (:func:`~cosimstep.store.amend_run`)."""
     tol = pristine.policy.tol  # type: ignore[attr-defined]
     assert first.error_estimate is not None
+    cost = first.calls_total + first.estimate_calls
     facts = {"run": "first", "tol": tol, "error_estimate": first.error_estimate,
              "calls": first.calls_total, "estimate_calls": first.estimate_calls,
              "run_id": first.run_id}
     why = note(tol, first.error_estimate, first.calls_total, factor)
-    remaining = budget.after(first.calls_total + first.estimate_calls)
-    if remaining is None or (remaining.max_calls is not None
-                             and remaining.max_calls < first.calls_total):
-        _amend(first, f"; not {why}: the budget left is smaller than this run", None)
+    remaining = budget.after(cost)
+    if remaining is None or not remaining.affords(cost, first.wall_s):
+        spent = "spent" if remaining is None else "smaller than this run"
+        _amend(first, f"; not {why}: the budget left is {spent}", None)
         return first
 
     def amend(result: SimulationResult) -> None:
@@ -178,30 +184,43 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
     second = once(scaled(pristine, factor), remaining, None,
                   {**(config or {}), "tightened": facts}, amend, repeat=True)
     at = f"at tol {tol * factor:.3g}" + (f" (run {second.run_id})" if second.run_id else "")
-    if second.status == "ok" and second.error_estimate is not None \
-            and second.error_estimate <= first.error_estimate:
+    estimate = second.error_estimate
+    if second.status == "ok" and estimate is not None and estimate <= first.error_estimate:
         _amend(first, f"; repeated {at}, which is the result", False)
         return second
-    what = f"ended {second.status} ({second.message.removesuffix(f'; {why}')})" \
-        if second.status != "ok" else "estimated its own error no lower, at " \
-        f"{(second.error_estimate or math.nan) / tol:.3g} x tol"
-    _amend(first, f"; a repeat {at} {what}: this is the first run's result", None)
+    if second.status != "ok":
+        what = f"ended {second.status} ({second.message.removesuffix(f'; {why}')})"
+    elif estimate is None or not math.isfinite(estimate):
+        what = "gave no usable estimate of its own error"
+    else:
+        what = f"estimated its own error no lower, at {estimate / tol:.3g} x tol"
+    first.tightened = {"run": "repeat", "tol": tol * factor, "error_estimate": estimate,
+                       "status": second.status, "calls": second.calls_total,
+                       "estimate_calls": second.estimate_calls, "run_id": second.run_id}
     _amend(second, f"; not kept: run {first.run_id}, the first, is the result", False)
-    first.tightened = {"run": "repeat", "tol": tol * factor,
-                       "error_estimate": second.error_estimate, "status": second.status,
-                       "calls": second.calls_total, "estimate_calls": second.estimate_calls,
-                       "run_id": second.run_id}
+    _amend(first, f"; a repeat {at} {what}: this is the first run's result", None,
+           {"tightened": first.tightened, "calls_spent": first.calls_spent})
+    if raise_on_failure and second.status == "interrupted":
+        raise KeyboardInterrupt(first.message)  # the user stopped the repeat: stop the caller
     return first
 
 
-def _amend(result: SimulationResult, text: str, kept: bool | None) -> None:
-    """Add ``text`` to ``result``'s message, in memory and in its store (marking it as not the
-    result with ``kept = False``)."""
+def _amend(result: SimulationResult, text: str, kept: bool | None,
+           updates: dict[str, Any] | None = None) -> None:
+    """Add ``text`` to ``result``'s message, in memory and in its store (there marking it as
+    not the result with ``kept = False``, and merging ``updates`` into its summary). A store
+    that cannot be written (locked, full, the run deleted) costs the note there, never the
+    result: the message says so and a warning is issued."""
     result.message += text
-    if result.store is not None and result.run_id is not None:
-        from cosimstep.store import amend_run
+    if result.store is None or result.run_id is None:
+        return
+    from cosimstep.store import amend_run
 
-        amend_run(result.store, result.run_id, text, kept)
+    try:
+        amend_run(result.store, result.run_id, text, kept, updates)
+    except (sqlite3.Error, LookupError, OSError) as exc:
+        result.message += f" (the store was not updated: {exc})"
+        warnings.warn(f"{result.store}: run {result.run_id} not updated: {exc}", stacklevel=3)
 
 
 ESTIMATES = ("sum", "rerun", "richardson")

@@ -37,6 +37,7 @@ which are still read.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -92,16 +93,18 @@ CREATE TABLE IF NOT EXISTS checkpoint(
 """
 
 
-OWNER_COLUMNS = (("host", "TEXT"), ("pid", "INTEGER"), ("heartbeat", "REAL"))
-"""Added to the run table (stores written before they existed get them on opening)."""
+ADDED_COLUMNS = (("host", "TEXT"), ("pid", "INTEGER"), ("heartbeat", "REAL"), ("kept", "INTEGER"))
+"""Added to the run table (stores written before they existed get them on opening): the
+writer's host, process and heartbeat, and ``kept = 0`` for a run that is not the result of its
+call (the discarded one of a pair repeated at a tighter tol, :func:`amend_run`)."""
 STALE_SECONDS = 60.0
 """A ``running`` run whose writer's heartbeat is older than this (and whose process is gone, when
 it ran on this host) is ``abandoned``: killed, or its machine died."""
 
 
-def _add_owner_columns(db: sqlite3.Connection) -> None:
+def _add_columns(db: sqlite3.Connection) -> None:
     have = {row[1] for row in db.execute("PRAGMA table_info(run)")}
-    for name, kind in OWNER_COLUMNS:
+    for name, kind in ADDED_COLUMNS:
         if name not in have:
             db.execute(f"ALTER TABLE run ADD COLUMN {name} {kind}")
 
@@ -121,7 +124,7 @@ class Store:
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute("PRAGMA synchronous=NORMAL")
         self._db.executescript(SCHEMA)
-        _add_owner_columns(self._db)
+        _add_columns(self._db)
         self._flush_seconds = flush_seconds
         self._last_flush = time.monotonic()
         self._points = _Blocks()  # (t, values) of consecutive points
@@ -362,7 +365,7 @@ def read_checkpoint(path: str | Path, run_id: int | None = None,
             if row is None or row[0] is None:
                 raise ValueError(f"{path} holds no run to resume")
             run_id = int(row[0])
-        _add_owner_columns(db)
+        _add_columns(db)
         run = db.execute("SELECT status, host, pid, heartbeat FROM run WHERE id=?",
                          (run_id,)).fetchone()
         if run is None:
@@ -430,7 +433,9 @@ def runs(path: str | Path) -> list[tuple[int, str, str]]:
 
 
 def run_table(path: str | Path) -> list[dict[str, Any]]:
-    """Every run of a store: id, created, system, status, message, t_end, wall_s, host, pid.
+    """Every run of a store: id, created, system, status, message, t_end, wall_s, host, pid,
+    heartbeat, and kept (0 for the discarded run of a pair repeated at a tighter tol, else
+    ``None``: :func:`amend_run`).
 
     ``running`` is told apart from ``abandoned`` (the writer was killed, or its machine died):
     on this host by whether the writing process still exists, elsewhere by a heartbeat older
@@ -440,11 +445,11 @@ def run_table(path: str | Path) -> list[dict[str, Any]]:
     if not path.is_file():
         raise FileNotFoundError(f"no results store at {path}")
     with sqlite3.connect(path) as db:
-        _add_owner_columns(db)
+        _add_columns(db)
         rows = db.execute("SELECT id, created, system, status, message, t_end, wall_s, host, "
-                          "pid, heartbeat FROM run ORDER BY id").fetchall()
+                          "pid, heartbeat, kept FROM run ORDER BY id").fetchall()
     keys = ("id", "created", "system", "status", "message", "t_end", "wall_s", "host", "pid",
-            "heartbeat")
+            "heartbeat", "kept")
     out = [dict(zip(keys, r)) for r in rows]
     for run in out:
         if run["status"] == "running" and not _alive(run):
@@ -482,26 +487,30 @@ def delete_run(path: str | Path, run_id: int) -> None:
         db.execute("DELETE FROM run WHERE id=?", (run_id,))
 
 
-def amend_run(path: str | Path, run_id: int, text: str, kept: bool | None = None) -> None:
-    """Append ``text`` to a finished run's stored message (the column and its summary), and
-    with ``kept = False`` mark it as not the result of its call: what became known after it
-    ended (a run repeated at a tighter tol, :mod:`cosimstep.tighten`). A run so marked is
-    passed over where a command reads "the newest run" (:func:`read_run` without an id)."""
-    with sqlite3.connect(path) as db:
+def amend_run(path: str | Path, run_id: int, text: str, kept: bool | None = None,
+              updates: dict[str, Any] | None = None) -> None:
+    """Append ``text`` to a finished run's stored message (the column and its summary), merge
+    ``updates`` into its summary, and with ``kept = False`` mark it as not the result of its
+    call: what became known after it ended (a run repeated at a tighter tol,
+    :mod:`cosimstep.tighten`). A run so marked is passed over where a command reads "the
+    newest run" (:func:`read_run` without an id)."""
+    with contextlib.closing(sqlite3.connect(path)) as db, db:
+        _add_columns(db)
         row = db.execute("SELECT message, summary_json FROM run WHERE id=?", (run_id,)).fetchone()
         if row is None:
             raise LookupError(f"no run {run_id} in {path}")
         message = (row[0] or "") + text
-        summary = json.loads(row[1]) if row[1] else {}
-        summary["message"] = message
-        if kept is not None:
-            summary["kept"] = kept
+        summary = {**(json.loads(row[1]) if row[1] else {}), **(updates or {}),
+                   "message": message}
         db.execute("UPDATE run SET message=?, summary_json=? WHERE id=?",
                    (message, json.dumps(summary, default=float), run_id))
+        if kept is not None:
+            db.execute("UPDATE run SET kept=? WHERE id=?", (int(kept), run_id))
 
 
 def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
-    """Read a run (default: the last one) back into NumPy arrays."""
+    """Read a run back into NumPy arrays (default: the last one that is a result, passing
+    over the discarded run of a pair repeated at a tighter tol, :func:`amend_run`)."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no results store at {path}")
@@ -539,8 +548,9 @@ def read_run(path: str | Path, run_id: int | None = None) -> StoredRun:
 def _last_run_id(db: sqlite3.Connection, path: Path) -> int:
     """The newest run's id: what :func:`read_run` reads when not told which run — but not a
     run marked as not kept (:func:`amend_run`), the discarded one of a repeated pair."""
-    row = db.execute("SELECT MAX(id) FROM run WHERE summary_json IS NULL OR summary_json "
-                     "NOT LIKE '%\"kept\": false%'").fetchone()
+    have = {row[1] for row in db.execute("PRAGMA table_info(run)")}  # (read, never altered)
+    row = db.execute("SELECT MAX(id) FROM run" + (" WHERE kept IS NULL OR kept != 0"
+                                                  if "kept" in have else "")).fetchone()
     if row is None or row[0] is None:
         raise LookupError(f"{path} holds no runs")
     return int(row[0])

@@ -64,7 +64,8 @@ def test_a_run_whose_estimate_cannot_vouch_for_its_tolerance_is_repeated_tighter
     first, second = read_run(store, table[0]["id"]), read_run(store, table[1]["id"])
     assert first.summary["calls_total"] == alone.calls_total
     assert first.message.endswith(f"; repeated at tol {tol / ratio:.3g} (run 2), which is the "
-                                  "result") and first.summary["kept"] is False
+                                  "result") and table[0]["kept"] == 0
+    assert read_run(store).run_id == 2 and table[1]["kept"] is None
     assert second.summary["tightened"] == result.tightened
     assert second.config["tightened"] == result.tightened
     assert second.config["controller"]["policy"]["tol"] == pytest.approx(tol / ratio)
@@ -128,7 +129,10 @@ def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result(tmp_
     assert [r["id"] for r in table] == [1, 2] and result.run_id == 1
     assert table[1]["message"].endswith("; not kept: run 1, the first, is the result")
     assert table[0]["message"] == result.message
-    assert read_run(db).run_id == 1 and read_run(db, 2).summary["kept"] is False
+    assert table[1]["kept"] == 0 and table[0]["kept"] is None
+    kept = read_run(db)
+    assert kept.run_id == 1 and kept.summary["tightened"] == result.tightened
+    assert kept.summary["calls_spent"] == result.calls_spent == alone.calls_total + other["calls"]
 
 
 def test_who_is_repeated_and_by_how_much() -> None:
@@ -154,3 +158,20 @@ def test_the_report_names_the_first_run(alone, capsys) -> None:
     assert (f"repeated at a tighter tol: the run at tol 0.0001 estimated "
             f"{alone.error_estimate / 1e-4:.3g} x tol ({alone.calls_total} calls more, not "
             "counted above)") in out
+
+
+def test_a_store_that_cannot_be_amended_costs_the_note_not_the_result(tmp_path) -> None:
+    """Both runs have finished when the store is told which is the result; a store that
+    cannot be written then (the run deleted, the file locked or not a store) is reported in
+    the message and by a warning, and the result is returned all the same."""
+    from cosimstep.result import SimulationResult
+    from cosimstep.simulate import _amend
+
+    result = SimulationResult(status="ok", message="completed", t_end=1.0, names=[], units=[],
+                              times=np.array([0.0, 1.0]), values=np.zeros((2, 0)), calls={},
+                              steps_accepted=1, steps_rejected=0, step_sizes=np.array([1.0]),
+                              wall_s=0.0, time_in_models={}, store=str(tmp_path / "none.db"),
+                              run_id=7)
+    with pytest.warns(UserWarning, match="run 7 not updated"):
+        _amend(result, "; repeated", False)
+    assert result.message.startswith("completed; repeated (the store was not updated: ")
