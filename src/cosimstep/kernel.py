@@ -41,19 +41,19 @@ class Budget:
                 raise ValueError(f"`{name}` must be positive, got {value}")
         self.max_wall, self.max_calls = max_wall, max_calls
         self._start = time.perf_counter()
+        self._before = 0  # calls spent by earlier runs for the same result (:meth:`after`)
 
     def __bool__(self) -> bool:
         return self.max_wall is not None or self.max_calls is not None
 
-    def after(self, calls: int) -> Budget | None:
-        """What is left for a further run once ``calls`` are spent (the wall clock runs on
-        from this budget's start), or ``None`` if nothing is."""
+    def after(self, calls: int) -> Budget:
+        """What is left for a further run once ``calls`` are spent by others (the wall clock
+        runs on from this budget's start): a run given it checks its own calls against the
+        rest, so that runs made for one result (a re-run estimate's looser twin, a repeat at
+        a tighter tol) share one budget. Nothing left: its first check ends it."""
         left = copy.copy(self)
         left.max_calls = None if self.max_calls is None else self.max_calls - calls
-        try:
-            left.check(0)
-        except BudgetExceeded:
-            return None
+        left._before = self._before + calls
         return left
 
     def affords(self, calls: int, wall: float) -> bool:
@@ -66,7 +66,10 @@ class Budget:
     def check(self, calls: int) -> None:
         """Raise :class:`BudgetExceeded` if ``calls`` or the wall time since the start is over."""
         if self.max_calls is not None and calls >= self.max_calls:
-            raise BudgetExceeded(f"the budget of {self.max_calls} calls is spent ({calls} calls)")
+            before = f", {self._before} of them by the runs before this one" if self._before \
+                else ""
+            raise BudgetExceeded(f"the budget of {self.max_calls + self._before} calls is spent "
+                                 f"({calls + self._before} calls{before})")
         if self.max_wall is not None and time.perf_counter() - self._start >= self.max_wall:
             raise BudgetExceeded(f"the wall-time budget of {self.max_wall:g} s is spent")
 

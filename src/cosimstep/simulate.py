@@ -132,9 +132,10 @@ def simulate(
         neither raises its failure nor writes checkpoints, which no command line could resume
         (its settings carry the tighter tol)."""
         looser = None
-        if estimate == "rerun":
+        if estimate == "rerun":  # the looser twin's calls come out of the run's budget
             looser = _simulate(system, until, scaled(ctrl, FACTOR), master, t0, None, None,
                                name, None, False, False, None, spent)
+            spent = spent.after(looser.calls_total)
         checkpoints = None
         if not repeat and (checkpoint_every is not None or checkpoint_steps is not None):
             from cosimstep.checkpoint import Checkpoints
@@ -171,9 +172,8 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
              "run_id": first.run_id}
     why = note(tol, first.error_estimate, first.calls_total, factor)
     remaining = budget.after(cost)
-    if remaining is None or not remaining.affords(cost, first.wall_s):
-        spent = "spent" if remaining is None else "smaller than this run"
-        _amend(first, f"; not {why}: the budget left is {spent}", None)
+    if not remaining.affords(cost, first.wall_s):
+        _amend(first, f"; not {why}: the budget left is smaller than this run", None)
         return first
 
     def amend(result: SimulationResult) -> None:

@@ -175,3 +175,14 @@ def test_a_store_that_cannot_be_amended_costs_the_note_not_the_result(tmp_path) 
     with pytest.warns(UserWarning, match="run 7 not updated"):
         _amend(result, "; repeated", False)
     assert result.message.startswith("completed; repeated (the store was not updated: ")
+
+
+def test_a_re_run_estimate_s_looser_run_spends_the_same_budget() -> None:
+    """``max_calls`` bounds what one ``simulate`` spends: the looser twin of the re-run
+    estimate (Van der Pol at 1e-3: 312 calls at 1e-2, then 480 at 1e-3) leaves the run only
+    the rest. Before, each checked its own calls, and the pair could spend twice the budget."""
+    result = _van_der_pol(1e-3, estimate="rerun", tighten=False, max_calls=600)
+    assert result.status == "timed_out"
+    assert result.estimate_calls == 312 and 600 <= result.calls_total + 312 < 604
+    assert "the budget of 600 calls is spent" in result.message
+    assert "312 of them by the runs before this one" in result.message
