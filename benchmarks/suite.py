@@ -41,7 +41,7 @@ from cosimstep import Fixed, simulate, suite
 from cosimstep.controllers import make_controller
 from cosimstep.estimate import FACTOR, rerun_estimate
 from cosimstep.masters import MasterOptions
-from cosimstep.tighten import scaled, tightening
+from cosimstep.tighten import keeps_repeat, scaled, tightening
 
 ROOT = Path(__file__).resolve().parents[1]
 TOLS = [1e-2, 1e-3, 1e-4, 1e-5, 1e-6]
@@ -137,7 +137,7 @@ def _tightened(job: dict, problem: Any, master: MasterOptions, r: Any,
                                          "calls": None, "per_model": {n: 0 for n in r.calls}}
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
-    if r2.status == "ok" and estimate2 is not None and estimate2 <= estimate:
+    if keeps_repeat(r2.status, estimate, estimate2):
         return r2, estimate2, controller2, {"run": "first", "tol": job["tol"],
                                             "error_estimate": estimate,
                                             "calls": r.calls_total, "per_model": dict(r.calls)}

@@ -24,7 +24,7 @@ from cosimstep.reference import Reference
 from cosimstep.result import ModelStats, SimulationResult
 from cosimstep.run import Run, scheme_for
 from cosimstep.system import System
-from cosimstep.tighten import may_repeat, note, scaled, tightening
+from cosimstep.tighten import keeps_repeat, may_repeat, note, scaled, tightening
 
 
 def simulate(
@@ -167,9 +167,7 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
     tol = pristine.policy.tol  # type: ignore[attr-defined]
     assert first.error_estimate is not None
     cost = first.calls_total + first.estimate_calls
-    facts = {"run": "first", "tol": tol, "error_estimate": first.error_estimate,
-             "calls": first.calls_total, "estimate_calls": first.estimate_calls,
-             "run_id": first.run_id}
+    facts = _other("first", tol, first)
     why = note(tol, first.error_estimate, first.calls_total, factor)
     remaining = budget.after(cost)
     if not remaining.affords(cost, first.wall_s):
@@ -185,7 +183,7 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
                   {**(config or {}), "tightened": facts}, amend, repeat=True)
     at = f"at tol {tol * factor:.3g}" + (f" (run {second.run_id})" if second.run_id else "")
     estimate = second.error_estimate
-    if second.status == "ok" and estimate is not None and estimate <= first.error_estimate:
+    if keeps_repeat(second.status, first.error_estimate, estimate):
         _amend(first, f"; repeated {at}, which is the result", False)
         return second
     if second.status != "ok":
@@ -194,15 +192,20 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
         what = "gave no usable estimate of its own error"
     else:
         what = f"estimated its own error no lower, at {estimate / tol:.3g} x tol"
-    first.tightened = {"run": "repeat", "tol": tol * factor, "error_estimate": estimate,
-                       "status": second.status, "calls": second.calls_total,
-                       "estimate_calls": second.estimate_calls, "run_id": second.run_id}
+    first.tightened = {**_other("repeat", tol * factor, second), "status": second.status}
     _amend(second, f"; not kept: run {first.run_id}, the first, is the result", False)
     _amend(first, f"; a repeat {at} {what}: this is the first run's result", None,
            {"tightened": first.tightened, "calls_spent": first.calls_spent})
     if raise_on_failure and second.status == "interrupted":
         raise KeyboardInterrupt(first.message)  # the user stopped the repeat: stop the caller
     return first
+
+
+def _other(run: str, tol: float, result: SimulationResult) -> dict[str, Any]:
+    """``SimulationResult.tightened`` of the pair's other run: ``result``, run at ``tol``."""
+    return {"run": run, "tol": tol, "error_estimate": result.error_estimate,
+            "calls": result.calls_total, "estimate_calls": result.estimate_calls,
+            "run_id": result.run_id}
 
 
 def _amend(result: SimulationResult, text: str, kept: bool | None,

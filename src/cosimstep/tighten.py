@@ -26,7 +26,7 @@ is of another kind). The estimate that decides is the run's ``error_estimate``: 
 by default, the companion's or the re-run's where ``simulate(estimate=...)`` asks for them
 (both measured closer to the error than the sum on the suite). The repeat is one, and it is
 kept only if it ended ok with an estimate of its own no higher than the first run's
-(:func:`cosimstep.simulate._repeat`); where its estimate still exceeds the tolerance asked for
+(:func:`keeps_repeat`); where its estimate still exceeds the tolerance asked for
 its message says so; and it is never more than ``MOST`` times tighter — a run whose estimate
 says it missed by a million is better reported than run for days.
 """
@@ -66,6 +66,13 @@ def tightening(status: str, estimate: float | None, controller: Any,
     return max(1.0 / ratio, 1.0 / MOST)
 
 
+def keeps_repeat(status: str, first: float, repeat: float | None) -> bool:
+    """Whether the repeat is the result: it ended ok with an estimate of its own (``repeat``)
+    no higher than the first run's (``first``) — the only judge there is without a
+    reference. A missing or NaN estimate is not kept."""
+    return status == "ok" and repeat is not None and repeat <= first
+
+
 def scaled(controller: Any, factor: float) -> Any:
     """A copy of ``controller`` (not yet run) with its tolerances multiplied by ``factor``."""
     twin = copy.deepcopy(controller)
@@ -83,4 +90,5 @@ def note(tol: float, estimate: float, calls: int, factor: float) -> str:
             f"{BAND:g} x tol cannot be ruled out ({calls} calls)")
 
 
-__all__ = ["BAND", "MOST", "SPREAD", "THRESHOLD", "may_repeat", "note", "scaled", "tightening"]
+__all__ = ["BAND", "MOST", "SPREAD", "THRESHOLD", "keeps_repeat", "may_repeat", "note", "scaled",
+           "tightening"]
