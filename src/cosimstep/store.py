@@ -355,16 +355,16 @@ def _differences(stored: dict[str, Any], given: dict[str, Any], most: int = 4) -
 
 def read_checkpoint(path: str | Path, run_id: int | None = None,
                     db: sqlite3.Connection | None = None) -> Checkpoint:
-    """Run ``run_id``'s newest checkpoint (``None``: the newest run's); ``ValueError`` saying
-    why there is none to resume from."""
+    """Run ``run_id``'s newest checkpoint (``None``: the newest run's that is a result, as
+    :func:`read_run` picks it); ``ValueError`` saying why there is none to resume from."""
     own = db is None
     db = db if db is not None else sqlite3.connect(path)
     try:
         if run_id is None:
-            row = db.execute("SELECT max(id) FROM run").fetchone()
-            if row is None or row[0] is None:
-                raise ValueError(f"{path} holds no run to resume")
-            run_id = int(row[0])
+            try:
+                run_id = _last_run_id(db, Path(path))
+            except LookupError:
+                raise ValueError(f"{path} holds no run to resume") from None
         _add_columns(db)
         run = db.execute("SELECT status, host, pid, heartbeat FROM run WHERE id=?",
                          (run_id,)).fetchone()

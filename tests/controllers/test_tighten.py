@@ -16,7 +16,7 @@ import pytest
 import cosimstep as cs
 from cosimstep import suite, tighten
 from cosimstep.cli import _report
-from cosimstep.store import read_run, run_table
+from cosimstep.store import read_checkpoint, read_run, run_table
 
 
 def _van_der_pol(tol: float, **kwargs) -> cs.SimulationResult:
@@ -133,6 +133,8 @@ def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result(tmp_
     kept = read_run(db)
     assert kept.run_id == 1 and kept.summary["tightened"] == result.tightened
     assert kept.summary["calls_spent"] == result.calls_spent == alone.calls_total + other["calls"]
+    with pytest.raises(ValueError, match=r"run 1 in .* completed"):  # the result, not the repeat
+        read_checkpoint(db)
 
 
 def test_who_is_repeated_and_by_how_much() -> None:
