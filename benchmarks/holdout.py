@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from _cli import add_shared, option
 from _doc import write_section
 from cosimstep import MasterOptions, System, make_controller, simulate
 from cosimstep.adapters.ode import RK4, OdeSubModel
@@ -265,27 +266,11 @@ def document(rows: list[dict], minutes: float) -> str:
     return "\n".join(lines)
 
 
-def _option(text: str) -> tuple[str, object]:
-    """``KEY=VALUE``: true/false, a number, else the text (as ``benchmarks/suite.py``)."""
-    key, _, value = text.partition("=")
-    lowered = value.strip().lower()
-    if lowered in ("true", "false"):
-        return key.strip(), lowered == "true"
-    try:
-        return key.strip(), float(value)
-    except ValueError:
-        return key.strip(), value.strip()
-
-
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
     """The command line, checked: unknown systems or masters are an error, not a crash."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--systems", help="comma-separated names (default: all)")
-    ap.add_argument("--masters", help="comma-separated: pc, multirate (default: both)")
-    ap.add_argument("--opt", action="append", default=[], metavar="KEY=VALUE",
-                    help="a controller option (e.g. predictive=true); implies --no-write")
-    ap.add_argument("--no-write", action="store_true", help="do not touch docs/benchmarks.md")
-    ap.add_argument("--results", type=Path, default=RESULTS, help="where the raw rows go")
+    add_shared(ap, RESULTS)
     args = ap.parse_args(argv)
     args.subset = bool(args.systems or args.masters or args.opt)
     args.systems = args.systems.split(",") if args.systems else list(SYSTEMS)
@@ -300,7 +285,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> None:
     args = _arguments(argv)
-    options = dict(_option(o) for o in args.opt)
+    options = dict(option(o) for o in args.opt)
     jobs = [(n, m, t, options) for n in args.systems for m in args.masters for t in TOLS]
     start, rows = time.perf_counter(), []
     args.results.parent.mkdir(parents=True, exist_ok=True)

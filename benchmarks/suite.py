@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from _cli import add_shared, option
 from _doc import write_section
 from cosimstep import Fixed, simulate, suite
 from cosimstep.controllers import make_controller
@@ -394,18 +395,6 @@ def sources(problems: list[str]) -> list[str]:
     return out
 
 
-def _option(text: str) -> tuple[str, object]:
-    """``KEY=VALUE`` with a TOML-like value (true/false, a number, else the text)."""
-    key, _, value = text.partition("=")
-    lowered = value.strip().lower()
-    if lowered in ("true", "false"):
-        return key.strip(), lowered == "true"
-    try:
-        return key.strip(), float(value)
-    except ValueError:
-        return key.strip(), value.strip()
-
-
 def document(problems: list[str], masters: list[str], adaptive: list[dict], lines: list[dict],
              minutes: float) -> str:
     """The section of docs/benchmarks.md, between the suite markers."""
@@ -445,12 +434,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--problems", help="comma-separated names (default: all)")
     ap.add_argument("--tols", help="comma-separated tolerances (default: 1e-2 … 1e-6)")
-    ap.add_argument("--masters", help="comma-separated: pc, multirate (default: both)")
-    ap.add_argument("--no-write", action="store_true", help="do not touch docs/benchmarks.md")
-    ap.add_argument("--opt", action="append", default=[], metavar="KEY=VALUE",
-                    help="a controller option for the adaptive runs (e.g. predictive=true); "
-                         "implies --no-write")
-    ap.add_argument("--results", type=Path, default=RESULTS, help="where the raw results go")
+    add_shared(ap, RESULTS)
     ap.add_argument("--figure", action="store_true",
                     help=f"only draw {FIGURE.relative_to(ROOT)} from the results file")
     args = ap.parse_args(argv)
@@ -472,7 +456,7 @@ def main(argv: list[str] | None = None) -> None:
         estimate_figure(json.loads(args.results.read_text())["adaptive"])
         return
     problems, tols, masters = args.problems, args.tols, args.masters
-    options = dict(_option(o) for o in args.opt)
+    options = dict(option(o) for o in args.opt)
     subset = args.subset
     started = time.perf_counter()
     # one looser tolerance than asked, only to pair with the loosest for the re-run estimate
