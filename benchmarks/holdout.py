@@ -43,7 +43,7 @@ from _doc import write_section
 from cosimstep import MasterOptions, System, make_controller, simulate
 from cosimstep.adapters.ode import RK4, OdeSubModel
 from cosimstep.reference import Reference
-from cosimstep.suite.base import connect_both_ways, ports
+from cosimstep.suite.base import connect_both_ways, ports, scalar_pair
 from cosimstep.suite.cycles import brusselator, van_der_pol
 from cosimstep.suite.mechanical import two_mass
 
@@ -65,25 +65,11 @@ def _ode(rhs: Rhs, states: dict[str, tuple[str, float]], inputs: dict[str, tuple
                        time_events=events)
 
 
-def _scalar_pair(fx: Rhs, fy: Rhs, whole: Rhs, start: tuple[float, float],
-                 names: tuple[str, str], events: tuple[float, ...] = ()
-                 ) -> tuple[System, Reference]:
-    """Sub-model ``a`` integrates the first state and reads the second, ``b`` the other way
-    (the suite's limit-cycle split, with time events announced by ``a`` and the reference)."""
-    x, y = names
-    a = _ode(fx, {x: ("1", start[0])}, {y: ("1", start[1])}, events)
-    b = _ode(fy, {y: ("1", start[1])}, {x: ("1", start[0])})
-    system = connect_both_ways(System().add("a", a).add("b", b), "a", "b", {x: x}, {y: y})
-    mono = OdeSubModel(whole, ports({x: ("1", start[0]), y: ("1", start[1])}),
-                       time_events=events)
-    return system, Reference(mono, {f"a.{x}": x, f"b.{y}": y})
-
-
 def lotka_volterra() -> tuple[System, Reference]:
     """x' = αx − βxy, y' = δxy − γy (α, β, δ, γ = 1, 0.5, 0.2, 0.6) from (2, 1): a neutral
     cycle, no attraction, so every error stays."""
     al, be, de, ga = 1.0, 0.5, 0.2, 0.6
-    return _scalar_pair(lambda t, s, u, _: np.array([al * s[0] - be * s[0] * u[0]]),
+    return scalar_pair(lambda t, s, u, _: np.array([al * s[0] - be * s[0] * u[0]]),
                         lambda t, s, u, _: np.array([de * u[0] * s[0] - ga * s[0]]),
                         lambda t, s, u, _: np.array([al * s[0] - be * s[0] * s[1],
                                                      de * s[0] * s[1] - ga * s[1]]),
@@ -95,7 +81,7 @@ def fitzhugh_nagumo() -> tuple[System, Reference]:
     (1, 0), over 40 time units: one and a bit relaxation cycles (period about 39.5), the second
     jump near the end."""
     eps, a, b, current = 0.08, 0.7, 0.8, 0.5
-    return _scalar_pair(lambda t, s, u, _: np.array([s[0] - s[0] ** 3 / 3 - u[0] + current]),
+    return scalar_pair(lambda t, s, u, _: np.array([s[0] - s[0] ** 3 / 3 - u[0] + current]),
                         lambda t, s, u, _: np.array([eps * (u[0] + a - b * s[0])]),
                         lambda t, s, u, _: np.array([s[0] - s[0] ** 3 / 3 - s[1] + current,
                                                      eps * (s[0] + a - b * s[1])]),
@@ -110,7 +96,7 @@ def thermal_pair() -> tuple[System, Reference]:
     def power(t: float) -> float:
         return 10.0 if t >= 2.0 else 0.0
 
-    return _scalar_pair(
+    return scalar_pair(
         lambda t, x, u, _: np.array([(power(t) - (x[0] - ambient) / r1
                                       - (x[0] - u[0]) / r12) / c1]),
         lambda t, x, u, _: np.array([((u[0] - x[0]) / r12 - (x[0] - ambient) / r2) / c2]),

@@ -79,7 +79,7 @@ def run(job: dict) -> dict:
         else:
             controller = make_controller("pc", None, job["tol"], **job.get("options", {}))
             master = MasterOptions(MASTERS[job["kind"]], 2)
-        r, estimate, controller = _once(job, problem, controller, master)
+        r, estimate, controller, system = _once(job, problem, controller, master)
         r, estimate, controller, other = _tightened(job, problem, master, r, estimate,
                                                     controller)
         calls = {n: c + (other["per_model"][n] if other else 0) for n, c in r.calls.items()}
@@ -92,7 +92,7 @@ def run(job: dict) -> dict:
             out.update(richardson=float(r.error_estimate), richardson_calls=r.estimate_calls)
         if job["kind"] != "fixed":  # the own points, for the re-run estimate of the next tol
             out["points"] = {n: (m.times, m.values) for n, m in r.models.items()}
-            out["events"] = sorted({float(e) for m in problem.build()[0].models.values()
+            out["events"] = sorted({float(e) for m in system.models.values()
                                     for e in m.time_events() if 0.0 < e < problem.until})
     except RunTimeout:
         out.update(status="timeout", message=f"slower than {TIME_LIMIT:g} s")
@@ -105,11 +105,12 @@ def run(job: dict) -> dict:
 
 
 def _once(job: dict, problem: Any, controller: Any, master: MasterOptions
-          ) -> tuple[Any, float | None, Any]:
+          ) -> tuple[Any, float | None, Any, Any]:
     """One run of ``job`` (without the repeat :func:`run` does as the default does): the
-    result, the summed estimate and the controller. ``pc`` runs with the companion beside it
-    (estimate="richardson"), which leaves the run as it is; the summed estimate, the default's,
-    is still the controller's own, and decides a repeat as in ``simulate(tighten=True)``."""
+    result, the summed estimate, the controller and the system it ran. ``pc`` runs with the
+    companion beside it (estimate="richardson"), which leaves the run as it is; the summed
+    estimate, the default's, is still the controller's own, and decides a repeat as in
+    ``simulate(tighten=True)``."""
     system, reference = problem.build()
     companion = job["kind"] == "pc"
     r = simulate(system, problem.until, controller, master, reference=reference,
@@ -117,7 +118,7 @@ def _once(job: dict, problem: Any, controller: Any, master: MasterOptions
     estimate = getattr(controller if companion else r, "error_estimate", None)
     if estimate is not None:
         estimate = float(getattr(estimate, "max_scaled", estimate))
-    return r, estimate, controller
+    return r, estimate, controller, system
 
 
 def _tightened(job: dict, problem: Any, master: MasterOptions, r: Any,
@@ -131,7 +132,8 @@ def _tightened(job: dict, problem: Any, master: MasterOptions, r: Any,
     pristine = make_controller("pc", None, job["tol"], **job.get("options", {}))
     signal.setitimer(signal.ITIMER_REAL, TIME_LIMIT)  # the repeat has a time limit of its own
     try:
-        r2, estimate2, controller2 = _once(job, problem, scaled(pristine, factor), master)
+        r2, estimate2, controller2, _ = _once(job, problem, scaled(pristine, factor),
+                                              master)
     except RunTimeout:
         return r, estimate, controller, {"run": "repeat", "tol": job["tol"] * factor,
                                          "error_estimate": None, "status": "timeout",

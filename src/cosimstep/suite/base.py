@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
-from cosimstep.adapters.ode import OdeSubModel
+from cosimstep.adapters.ode import RK4, OdeSubModel
 from cosimstep.reference import Reference
 from cosimstep.submodel import Port
 from cosimstep.system import System
@@ -61,3 +61,21 @@ def connect_both_ways(system: System, a: str, b: str, a_to_b: Mapping[str, str],
     for out, inp in b_to_a.items():
         system.connect(f"{b}.{out}", f"{a}.{inp}")
     return system
+
+
+def scalar_pair(fx: Callable, fy: Callable, whole: Callable, start: tuple[float, float],
+                names: tuple[str, str], events: Sequence[float] = ()
+                ) -> tuple[System, Reference]:
+    """Two one-state sub-models with fixed-step RK4 inside (what is measured is the coupling's
+    error, not the internal solver's): ``a`` integrates state ``names[0]`` and reads the
+    other, ``b`` the other way; ``whole`` is the monolithic right-hand side of both, the
+    reference. ``events``: time events of ``fx`` (and so of ``whole``), announced by ``a``."""
+    x, y = names
+    a = OdeSubModel(fx, ports({x: ("1", start[0])}), inputs=ports({y: ("1", start[1])}),
+                    solver=RK4(max_dt=1e-3), time_events=events)
+    b = OdeSubModel(fy, ports({y: ("1", start[1])}), inputs=ports({x: ("1", start[0])}),
+                    solver=RK4(max_dt=1e-3))
+    system = connect_both_ways(System().add("a", a).add("b", b), "a", "b", {x: x}, {y: y})
+    mono = OdeSubModel(whole, ports({x: ("1", start[0]), y: ("1", start[1])}),
+                       time_events=events)
+    return system, Reference(mono, {f"a.{x}": x, f"b.{y}": y})

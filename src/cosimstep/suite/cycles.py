@@ -12,9 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cosimstep.adapters.ode import RK4, OdeSubModel
 from cosimstep.reference import Reference
-from cosimstep.suite.base import connect_both_ways, ports
+from cosimstep.suite.base import scalar_pair
 from cosimstep.system import System
 
 VDP_SOURCE = ("B. van der Pol (1926), 'On relaxation-oscillations', Phil. Mag. 2(11):978–992; "
@@ -26,19 +25,6 @@ BRUSSELATOR_SOURCE = ("R. Lefever, G. Nicolis (1971), 'Chemical instabilities an
                       "E. Hairer, S. P. Nørsett, G. Wanner (1993), 'Solving Ordinary "
                       "Differential Equations I', 2nd ed., Springer, section II.10 (A = 1, B = 3, "
                       "our split)")
-
-
-def _pair(fx, fy, whole, start: tuple[float, float], names: tuple[str, str]
-          ) -> tuple[System, Reference]:
-    """Sub-models ``a`` (state ``names[0]``, reads the other) and ``b`` (the other way)."""
-    x, y = names
-    a = OdeSubModel(fx, ports({x: ("1", start[0])}), inputs=ports({y: ("1", start[1])}),
-                    solver=RK4(max_dt=1e-3))
-    b = OdeSubModel(fy, ports({y: ("1", start[1])}), inputs=ports({x: ("1", start[0])}),
-                    solver=RK4(max_dt=1e-3))
-    system = connect_both_ways(System().add("a", a).add("b", b), "a", "b", {x: x}, {y: y})
-    mono = OdeSubModel(whole, ports({x: ("1", start[0]), y: ("1", start[1])}))
-    return system, Reference(mono, {f"a.{x}": x, f"b.{y}": y})
 
 
 def van_der_pol(mu: float = 3.0) -> tuple[System, Reference]:
@@ -59,7 +45,7 @@ def van_der_pol(mu: float = 3.0) -> tuple[System, Reference]:
     def whole(t: float, s: np.ndarray, u: np.ndarray, _: object) -> np.ndarray:
         return np.array([mu * (s[0] - s[0] ** 3 / 3.0 - s[1]), s[0] / mu])
 
-    return _pair(fx, fy, whole, (2.0, 0.0), ("x", "y"))
+    return scalar_pair(fx, fy, whole, (2.0, 0.0), ("x", "y"))
 
 
 def brusselator(a: float = 1.0, b: float = 3.0) -> tuple[System, Reference]:
@@ -82,4 +68,4 @@ def brusselator(a: float = 1.0, b: float = 3.0) -> tuple[System, Reference]:
     def whole(t: float, s: np.ndarray, u: np.ndarray, _: object) -> np.ndarray:
         return np.array([a + s[0] ** 2 * s[1] - (b + 1.0) * s[0], b * s[0] - s[0] ** 2 * s[1]])
 
-    return _pair(fx, fy, whole, (1.0, 1.0), ("x", "y"))
+    return scalar_pair(fx, fy, whole, (1.0, 1.0), ("x", "y"))
