@@ -24,7 +24,15 @@ from cosimstep.reference import Reference
 from cosimstep.result import ModelStats, SimulationResult
 from cosimstep.run import Run, scheme_for
 from cosimstep.system import System
-from cosimstep.tighten import keeps_repeat, may_repeat, note, scaled, tightening
+from cosimstep.tighten import (
+    along_motion,
+    for_repeat,
+    keeps_repeat,
+    may_repeat,
+    note,
+    scaled,
+    tightening,
+)
 
 
 def simulate(
@@ -151,13 +159,17 @@ def simulate(
         if pristine is not None else None
     if factor is None:
         return first
-    return _repeat(first, factor, pristine, budget, config, once, raise_on_failure)
+    # the controller that ran (a resumed run's too: a checkpoint is loaded into it) holds
+    # the parts of its estimate that decide how the repeat treats the error memory
+    return _repeat(first, (factor, along_motion(controller)), pristine, budget, config, once,
+                   raise_on_failure)
 
 
-def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget: Budget,
-            config: dict[str, Any] | None, once: Callable[..., SimulationResult],
+def _repeat(first: SimulationResult, how: tuple[float, bool], pristine: Controller,
+            budget: Budget, config: dict[str, Any] | None, once: Callable[..., SimulationResult],
             raise_on_failure: bool) -> SimulationResult:
-    """The run again at ``factor`` × its tolerances (:mod:`cosimstep.tighten`), or the first
+    """The run again at ``factor`` × its tolerances, without the error memory where
+    ``forget`` (``how = (factor, forget)``, :mod:`cosimstep.tighten`), or the first
     run's result where the repeat did not improve on it: a failure, or an estimate of its own
     missing or not below the first run's (the only judge there is without a reference;
     measured: a Brusselator repeated from 2.4 x tol estimated 6.9 x and delivered 42 x). No
@@ -165,10 +177,11 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
     estimate's, its wall time). The store says the same: the run that is not the result is
     marked so (:func:`~cosimstep.store.amend_run`)."""
     tol = pristine.policy.tol  # type: ignore[attr-defined]
+    factor, forget = how
     assert first.error_estimate is not None
     cost = first.calls_total + first.estimate_calls
     facts = _other("first", tol, first)
-    why = note(tol, first.error_estimate, first.calls_total, factor)
+    why = note(tol, first.error_estimate, first.calls_total, factor, forget)
     remaining = budget.after(cost)
     if not remaining.affords(cost, first.wall_s):
         _amend(first, f"; not {why}: the budget left is smaller than this run", None)
@@ -179,7 +192,7 @@ def _repeat(first: SimulationResult, factor: float, pristine: Controller, budget
         result.tightened = facts
 
     # a failing repeat is reported, not raised: the first run is a whole result to fall back on
-    second = once(scaled(pristine, factor), remaining, None,
+    second = once(for_repeat(pristine, factor, forget), remaining, None,
                   {**(config or {}), "tightened": facts}, amend, repeat=True)
     at = f"at tol {tol * factor:.3g}" + (f" (run {second.run_id})" if second.run_id else "")
     estimate = second.error_estimate

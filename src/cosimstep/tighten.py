@@ -83,12 +83,51 @@ def scaled(controller: Any, factor: float) -> Any:
     return twin
 
 
-def note(tol: float, estimate: float, calls: int, factor: float) -> str:
-    """What the repeat's message adds: why it ran, and what the first run cost."""
-    return (f"repeated at tol {tol * factor:.3g}: at tol {tol:.3g} the run estimated its own "
+def along_motion(controller: Any) -> bool:
+    """Whether the time shift carries more than half of the finished run's own estimate
+    (:mod:`~cosimstep.controllers.drift`): the estimate is above twice the plain sum of the
+    local estimates. At the estimate's largest the rest is at most that sum, so the shift,
+    the error along the motion, is the larger part. ``controller``: the one the run used."""
+    value = getattr(controller, "error_estimate", None)
+    summed = getattr(controller, "summed_estimate", None)
+    return value is not None and summed is not None and value > 2.0 * summed
+
+
+def for_repeat(controller: Any, factor: float, forget: bool) -> Any:
+    """The repeat's controller: ``controller`` (not yet run) at ``factor`` × its tolerances;
+    with ``forget`` (:func:`along_motion` of the first run), sharing them over the whole run,
+    its error memory unmeasured (no probes).
+
+    Why: the step control planned for an error of about ``tol`` by sharing the tolerance over
+    the measured memory ``M``. A probe measures how fast a perturbation fades, and on an
+    attracting slow branch of a relaxation oscillation it sees the part across the motion fade
+    and reads a short memory, while the part along the motion, a time shift, never fades and
+    returns at the next jump at the jump's speed. Where that shift carries most of the first
+    run's estimate, the plan failed in the part the memory does not describe: a repeat that
+    trusts the probes again repeats it, and its error need not even fall with tol
+    (FitzHugh–Nagumo at 1e-3, 11.8 × tol, repeated at tol / 2.6 with the probes: 26.5 × the
+    first tol; without them 3.7 ×). Without a memory every error is taken to persist, as the
+    step control assumes before any memory is measured. Where the plain sum itself carries the
+    estimate (a settling system whose bold step control overspent, the pump example with
+    ``trend``), the memory stands: dropping it there made the repeat 0.004 × tol instead of
+    in the band (docs/concepts.md, "A repeat without the error memory")."""
+    twin = scaled(controller, factor)
+    probe = getattr(twin, "probe", None)
+    if forget and probe is not None and probe.every:
+        twin.probe = type(probe)(every=0, steps=probe.steps, window=probe.window,
+                                 per_run=probe.per_run)
+        twin.measures_memory = False
+    return twin
+
+
+def note(tol: float, estimate: float, calls: int, factor: float, forget: bool) -> str:
+    """What the repeat's message adds: why it ran, and what the first run cost; ``forget``:
+    it runs without the error memory (:func:`for_repeat`)."""
+    return (f"repeated at tol {tol * factor:.3g}{' without the error memory' if forget else ''}"
+            f": at tol {tol:.3g} the run estimated its own "
             f"error at {estimate / tol:.3g} x tol, past {THRESHOLD:g} x tol, where more than "
             f"{BAND:g} x tol cannot be ruled out ({calls} calls)")
 
 
-__all__ = ["BAND", "MOST", "SPREAD", "THRESHOLD", "keeps_repeat", "may_repeat", "note", "scaled",
-           "tightening"]
+__all__ = ["BAND", "MOST", "SPREAD", "THRESHOLD", "along_motion", "for_repeat", "keeps_repeat",
+           "may_repeat", "note", "scaled", "tightening"]
