@@ -42,7 +42,7 @@ from cosimstep import Fixed, simulate, suite
 from cosimstep.controllers import make_controller
 from cosimstep.estimate import FACTOR, rerun_estimate
 from cosimstep.masters import MasterOptions
-from cosimstep.tighten import keeps_repeat, scaled, tightening
+from cosimstep.tighten import along_motion, for_repeat, keeps_repeat, tightening
 
 ROOT = Path(__file__).resolve().parents[1]
 TOLS = [1e-2, 1e-3, 1e-4, 1e-5, 1e-6]
@@ -132,8 +132,8 @@ def _tightened(job: dict, problem: Any, master: MasterOptions, r: Any,
     pristine = make_controller("pc", None, job["tol"], **job.get("options", {}))
     signal.setitimer(signal.ITIMER_REAL, TIME_LIMIT)  # the repeat has a time limit of its own
     try:
-        r2, estimate2, controller2, _ = _once(job, problem, scaled(pristine, factor),
-                                              master)
+        r2, estimate2, controller2, _ = _once(
+            job, problem, for_repeat(pristine, factor, along_motion(controller)), master)
     except RunTimeout:
         return r, estimate, controller, {"run": "repeat", "tol": job["tol"] * factor,
                                          "error_estimate": None, "status": "timeout",
