@@ -108,13 +108,15 @@ def simulate(
     tighten:
         Repeat the run once at a tighter tolerance when its own error estimate exceeds twice
         ``tol`` (controller ``pc``, synchronous masters; :mod:`cosimstep.tighten`): the
-        tolerance reduced by the factor the estimate missed by, at most 1000-fold. The repeat
-        is returned unless it failed or its own estimate is missing or no lower than the
-        first run's; its message says why, ``SimulationResult.tightened`` describes the other
-        run (which, its tolerance, estimate, calls and store id) and ``calls_spent`` counts
-        both. Both runs are stored, the one that is not the result marked so. A budget
-        (``max_calls``, ``max_wall``) covers both, and no repeat starts where what is left
-        could not pay for a run like the first. ``False``: one run, whatever its estimate.
+        tolerance reduced by the factor the estimate missed by, at most 1000-fold, and where
+        the estimate's time shift is its larger part (a limit cycle's phase error) without the
+        error memory (:func:`~cosimstep.tighten.for_repeat`). The repeat is returned unless
+        it failed or its own estimate is missing or no lower than the first run's; its
+        message says why, ``SimulationResult.tightened`` describes the other run (which, its
+        tolerance, estimate, calls and store id) and ``calls_spent`` counts both. Both runs
+        are stored, the one that is not the result marked so. A budget (``max_calls``,
+        ``max_wall``) covers both, and no repeat starts where what is left could not pay for
+        a run like the first. ``False``: one run, whatever its estimate.
     """
     budget = Budget(max_wall, max_calls)
     problems = estimate_problems(estimate, controller, master, resume)
