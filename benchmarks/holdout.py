@@ -158,7 +158,7 @@ def oregonator() -> tuple[System, Reference]:
 
 def rossler() -> tuple[System, Reference]:
     """Rössler's system, x' = −y − z, y' = x + a y, z' = b + z (x − c) (a, b, c = 0.2, 0.2,
-    2.5: a periodic orbit of period about 6.2), from (1, 0, 0), split (x, y) | z."""
+    2.5: a periodic orbit of period about 5.8), from (1, 0, 0), split (x, y) | z."""
     a, b, c = 0.2, 0.2, 2.5
 
     def plane(t: float, s: np.ndarray, u: np.ndarray, _: object) -> np.ndarray:

@@ -85,8 +85,8 @@ def main() -> None:
               "time M count over M only (--opt overrun=true: and tightens its steps once its "
               "own estimate exceeds TOL). Where pc's own estimate (gauss-seidel or jacobi) "
               "ends above 2 x TOL, the run is repeated once at TOL reduced by the factor it "
-              "missed by, without the error memory where the estimate is mostly a time "
-              "shift (a limit cycle's phase error; see --no-tighten). --json reports the "
+              "missed by, without the error memory where the summed estimate is mostly a "
+              "time shift (a limit cycle's phase error; see --no-tighten). --json reports the "
               "measured error in that norm (error.max_scaled, with a reference) and the "
               "run's own estimate (error_estimate).")
 @click.option("--no-tighten", is_flag=True, help="One run, whatever its own estimate says "

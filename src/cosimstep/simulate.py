@@ -109,11 +109,12 @@ def simulate(
         Repeat the run once at a tighter tolerance when its own error estimate exceeds twice
         ``tol`` (controller ``pc``, synchronous masters; :mod:`cosimstep.tighten`): the
         tolerance reduced by the factor the estimate missed by, at most 1000-fold, and where
-        the estimate's time shift is its larger part (a limit cycle's phase error) without the
-        error memory (:func:`~cosimstep.tighten.for_repeat`). The repeat is returned unless
-        it failed or its own estimate is missing or no lower than the first run's; its
-        message says why, ``SimulationResult.tightened`` describes the other run (which, its
-        tolerance, estimate, calls and store id) and ``calls_spent`` counts both. Both runs
+        the summed estimate's time shift is its larger part (a limit cycle's phase error)
+        without the error memory (:func:`~cosimstep.tighten.for_repeat`). The repeat is
+        returned unless it failed or its own estimate is missing or no lower than the first
+        run's; its message says why, ``SimulationResult.tightened`` describes the other run
+        (which, its tolerance, estimate, calls and store id; for the repeat whether it kept
+        the error memory) and ``calls_spent`` counts both. Both runs
         are stored, the one that is not the result marked so. A budget (``max_calls``,
         ``max_wall``) covers both, and no repeat starts where what is left could not pay for
         a run like the first. ``False``: one run, whatever its estimate.
@@ -196,7 +197,8 @@ def _repeat(first: SimulationResult, how: tuple[float, bool], pristine: Controll
     # a failing repeat is reported, not raised: the first run is a whole result to fall back on
     second = once(for_repeat(pristine, factor, forget), remaining, None,
                   {**(config or {}), "tightened": facts}, amend, repeat=True)
-    at = f"at tol {tol * factor:.3g}" + (f" (run {second.run_id})" if second.run_id else "")
+    at = f"at tol {tol * factor:.3g}" + (f" (run {second.run_id})" if second.run_id else "") \
+        + (" without the error memory" if forget else "")
     estimate = second.error_estimate
     if keeps_repeat(second.status, first.error_estimate, estimate):
         _amend(first, f"; repeated {at}, which is the result", False)
@@ -207,7 +209,8 @@ def _repeat(first: SimulationResult, how: tuple[float, bool], pristine: Controll
         what = "gave no usable estimate of its own error"
     else:
         what = f"estimated its own error no lower, at {estimate / tol:.3g} x tol"
-    first.tightened = {**_other("repeat", tol * factor, second), "status": second.status}
+    first.tightened = {**_other("repeat", tol * factor, second), "status": second.status,
+                       "memory": not forget}
     _amend(second, f"; not kept: run {first.run_id}, the first, is the result", False)
     _amend(first, f"; a repeat {at} {what}: this is the first run's result", None,
            {"tightened": first.tightened, "calls_spent": first.calls_spent})

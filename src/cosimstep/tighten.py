@@ -84,10 +84,12 @@ def scaled(controller: Any, factor: float) -> Any:
 
 
 def along_motion(controller: Any) -> bool:
-    """Whether the time shift carries more than half of the finished run's own estimate
-    (:mod:`~cosimstep.controllers.drift`): the estimate is above twice the plain sum of the
-    local estimates. At the estimate's largest the rest is at most that sum, so the shift,
-    the error along the motion, is the larger part. ``controller``: the one the run used."""
+    """Whether the time shift carries more than half of the finished run's summed estimate
+    (:mod:`~cosimstep.controllers.drift`, the controller's own, whichever estimate the run
+    reports): that estimate is above twice the plain sum of the local estimates. At the
+    estimate's largest the rest is at most that sum — except for shifts an event turned into
+    ordinary errors, which were shifts before it — so the shift, the error along the motion,
+    is the larger part. ``controller``: the one the run used."""
     value = getattr(controller, "error_estimate", None)
     summed = getattr(controller, "summed_estimate", None)
     return value is not None and summed is not None and value > 2.0 * summed
@@ -103,7 +105,7 @@ def for_repeat(controller: Any, factor: float, forget: bool) -> Any:
     attracting slow branch of a relaxation oscillation it sees the part across the motion fade
     and reads a short memory, while the part along the motion, a time shift, never fades and
     returns at the next jump at the jump's speed. Where that shift carries most of the first
-    run's estimate, the plan failed in the part the memory does not describe: a repeat that
+    run's summed estimate, the plan failed in the part the memory does not describe: a repeat that
     trusts the probes again repeats it, and its error need not even fall with tol
     (FitzHugh–Nagumo at 1e-3, 11.8 × tol, repeated at tol / 2.6 with the probes: 26.5 × the
     first tol; without them 3.7 ×). Without a memory every error is taken to persist, as the
@@ -117,6 +119,9 @@ def for_repeat(controller: Any, factor: float, forget: bool) -> Any:
         twin.probe = type(probe)(every=0, steps=probe.steps, window=probe.window,
                                  per_run=probe.per_run)
         twin.measures_memory = False
+        # they act only where a measured memory shows the system settling: off, so that the
+        # repeat's stored settings are ones a controller can be made with
+        twin.policy.trend = twin.policy.unbiased = False
     return twin
 
 

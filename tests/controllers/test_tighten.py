@@ -68,8 +68,8 @@ def test_a_run_whose_estimate_cannot_vouch_for_its_tolerance_is_repeated_tighter
     assert [r["status"] for r in table] == ["ok", "ok"]
     first, second = read_run(store, table[0]["id"]), read_run(store, table[1]["id"])
     assert first.summary["calls_total"] == alone.calls_total
-    assert first.message.endswith(f"; repeated at tol {tol / ratio:.3g} (run 2), which is the "
-                                  "result") and table[0]["kept"] == 0
+    assert first.message.endswith(f"; repeated at tol {tol / ratio:.3g} (run 2) without the "
+                                  "error memory, which is the result") and table[0]["kept"] == 0
     assert read_run(store).run_id == 2 and table[1]["kept"] is None
     assert second.summary["tightened"] == result.tightened
     assert second.config["tightened"] == result.tightened
@@ -96,6 +96,8 @@ def test_a_repeat_that_cannot_finish_leaves_the_first_run_s_result(alone) -> Non
     np.testing.assert_array_equal(result.values, alone.values)
     assert "ended timed_out" in result.message and "first run's result" in result.message
     assert result.tightened["run"] == "repeat" and result.tightened["status"] == "timed_out"
+    assert result.tightened["memory"] is False and "(run" not in result.message
+    assert "a repeat at tol 3.44e-05 without the error memory ended timed_out" in result.message
     short = _van_der_pol(1e-4, max_calls=alone.calls_total + 10)
     assert short.calls == alone.calls and short.tightened is None
     assert short.message.endswith("; not repeated at tol 3.44e-05 without the error memory: "
@@ -117,8 +119,8 @@ def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result(
     from cosimstep.suite import cycles
 
     # (the module, not the function the package exports under the same name)
-    monkeypatch.setattr(importlib.import_module("cosimstep.simulate"), "for_repeat",
-                        lambda controller, factor, forget: tighten.scaled(controller, factor))
+    monkeypatch.setattr(importlib.import_module("cosimstep.simulate"), "along_motion",
+                        lambda controller: False)
     tol, runs = 1e-4, {}
     for tighten_ in (False, True):
         system, reference = cycles.brusselator(1.0, 2.5)
@@ -130,7 +132,7 @@ def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result(
     assert result.calls == alone.calls and result.error_estimate == alone.error_estimate
     assert result.error.max_scaled / tol <= 10.0
     other = result.tightened
-    assert other["run"] == "repeat" and other["status"] == "ok"
+    assert other["run"] == "repeat" and other["status"] == "ok" and other["memory"] is True
     assert other["error_estimate"] > alone.error_estimate and other["calls"] > 0
     assert result.message.endswith(
         f"; a repeat at tol {other['tol']:.3g} (run 2) estimated its own error no lower, at "
@@ -178,7 +180,13 @@ def test_who_is_repeated_and_by_how_much() -> None:
     assert tighten.along_motion(Run(error_estimate=2.4e-4, summed_estimate=1e-4))
     assert not tighten.along_motion(Run(error_estimate=4.1e-5, summed_estimate=4.1e-5))
     assert not tighten.along_motion(Run(error_estimate=None, summed_estimate=1e-4))
-    assert not tighten.along_motion(cs.make_controller("corrector", None, 1e-3))
+    # `trend` and `unbiased` act only on a measured memory: off in a repeat without one, so
+    # that its stored settings are ones a controller can be made with
+    bold = tighten.for_repeat(cs.make_controller("pc", None, 1e-3, trend=True, unbiased=True),
+                              0.1, forget=True)
+    assert not (bold.policy.trend or bold.policy.unbiased)
+    with pytest.raises(ValueError, match="measures no error memory"):
+        cs.make_controller("pc", None, 1e-4, probe_every=0, trend=True)
     kept = tighten.for_repeat(original, 0.1, forget=False)  # the plain sum carried the estimate
     assert kept.probe.every == 20 and kept.measures_memory and kept.policy.tol == pytest.approx(
         1e-4)
