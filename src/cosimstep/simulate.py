@@ -114,10 +114,10 @@ def simulate(
         returned unless it failed or its own estimate is missing or no lower than the first
         run's; its message says why, ``SimulationResult.tightened`` describes the other run
         (which, its tolerance, estimate, calls and store id; for the repeat whether it kept
-        the error memory) and ``calls_spent`` counts both. Both runs
-        are stored, the one that is not the result marked so. A budget (``max_calls``,
-        ``max_wall``) covers both, and no repeat starts where what is left could not pay for
-        a run like the first. ``False``: one run, whatever its estimate.
+        the error memory) and ``calls_spent`` counts both. Both runs are stored, the one
+        that is not the result marked so. A budget (``max_calls``, ``max_wall``) covers both,
+        and no repeat starts where what is left could not pay for a run like the first.
+        ``False``: one run, whatever its estimate.
     """
     budget = Budget(max_wall, max_calls)
     problems = estimate_problems(estimate, controller, master, resume)
@@ -164,15 +164,15 @@ def simulate(
         return first
     # the controller that ran (a resumed run's too: a checkpoint is loaded into it) holds
     # the parts of its estimate that decide how the repeat treats the error memory
-    return _repeat(first, (factor, along_motion(controller)), pristine, budget, config, once,
+    return _repeat(first, factor, along_motion(controller), pristine, budget, config, once,
                    raise_on_failure)
 
 
-def _repeat(first: SimulationResult, how: tuple[float, bool], pristine: Controller,
+def _repeat(first: SimulationResult, factor: float, forget: bool, pristine: Controller,
             budget: Budget, config: dict[str, Any] | None, once: Callable[..., SimulationResult],
             raise_on_failure: bool) -> SimulationResult:
     """The run again at ``factor`` × its tolerances, without the error memory where
-    ``forget`` (``how = (factor, forget)``, :mod:`cosimstep.tighten`), or the first
+    ``forget`` (:mod:`cosimstep.tighten`), or the first
     run's result where the repeat did not improve on it: a failure, or an estimate of its own
     missing or not below the first run's (the only judge there is without a reference;
     measured: a Brusselator repeated from 2.4 x tol estimated 6.9 x and delivered 42 x). No
@@ -180,7 +180,6 @@ def _repeat(first: SimulationResult, how: tuple[float, bool], pristine: Controll
     estimate's, its wall time). The store says the same: the run that is not the result is
     marked so (:func:`~cosimstep.store.amend_run`)."""
     tol = pristine.policy.tol  # type: ignore[attr-defined]
-    factor, forget = how
     assert first.error_estimate is not None
     cost = first.calls_total + first.estimate_calls
     facts = _other("first", tol, first)

@@ -105,8 +105,8 @@ def for_repeat(controller: Any, factor: float, forget: bool) -> Any:
     attracting slow branch of a relaxation oscillation it sees the part across the motion fade
     and reads a short memory, while the part along the motion, a time shift, never fades and
     returns at the next jump at the jump's speed. Where that shift carries most of the first
-    run's summed estimate, the plan failed in the part the memory does not describe: a repeat that
-    trusts the probes again repeats it, and its error need not even fall with tol
+    run's summed estimate, the plan failed in the part the memory does not describe: a repeat
+    that trusts the probes again repeats it, and its error need not even fall with tol
     (FitzHugh–Nagumo at 1e-3, 11.8 × tol, repeated at tol / 2.6 with the probes: 26.5 × the
     first tol; without them 3.7 ×). Without a memory every error is taken to persist, as the
     step control assumes before any memory is measured. Where the plain sum itself carries the
