@@ -52,6 +52,7 @@ from cosimstep.extrapolation import (
 from cosimstep.kernel import Actor, Budget, Kernel
 from cosimstep.loops import EVENT_TOL, crossing
 from cosimstep.masters import Master, MasterOptions
+from cosimstep.race_drift import RaceShift
 from cosimstep.race_memory import PROBE_EVERY, RaceMemory
 from cosimstep.system import CompiledSystem
 
@@ -203,6 +204,7 @@ class Multirate:
         self.memories = [RaceMemory(self, group, probe_every) for group in self._groups()]
         self._memory_of = {k: m for m in self.memories for k in m.members}
         self._peak = 0.0  # the largest estimate so far (it fades where a memory is measured)
+        self.shift = RaceShift(len(system.models))  # the estimate with the time shift
 
     def _discrete_parts(self) -> None:
         """The outputs whose changes are events, and the sub-models that watch for them."""
@@ -796,6 +798,7 @@ class Multirate:
         token, h, lands, y, slope, inputs, extrapolated, left, verdict = trial
         tr.accepted += 1
         self._spend(tr, h, verdict)
+        self._shift(tr, h, verdict, y)
         sudden = _discontinuity(chain, h, verdict, tr.steps[-1] if tr.steps else None)
         tr.steps.append(h)
         if self.on_attempt is not None:
@@ -826,6 +829,22 @@ class Multirate:
         tr.spent_in = fade * tr.spent_in + verdict.spent_in
         if fade < 1.0:
             self._peak = max(self._peak, self._estimate_now())
+
+    def _shift(self, tr: Track, h: float, verdict: _Verdict, y: np.ndarray) -> None:
+        """Hand an accepted step to the estimate with the time shift (:mod:`~cosimstep.
+        race_drift`): its errors where they land, then its motion (before ``y`` is
+        appended)."""
+        k, pol = tr.index, tr.policy
+        for c in self.consumers[k]:
+            if c != k:
+                self.shift.lands(c, verdict.spent_out, h)
+        self.shift.lands(k, verdict.spent_in, h)
+        velocity = None
+        if h > 0.0 and not tr.discrete:
+            velocity = (y - tr.rows[-1]) / (h * pol.norm_scale(y) / pol.tol)
+        memory = pol.memory
+        fade = math.exp(-h / memory) if math.isfinite(memory) else 1.0
+        self.shift.moved(k, tr.t + h, velocity, fade, memory)
 
     def _accepted_trial(self, k: int, t: float, landing: float) -> tuple[tuple, list]:
         """Trial steps of ``k`` from ``t`` until one is accepted: ``(token, h, lands, y,
@@ -1019,6 +1038,7 @@ class Multirate:
         t = tr.times[at]
         tr.segment = at
         self._memory_of[k].forget()
+        self.shift.jump()
         self.state_fired.append(Event(t, tr.name, kind, payload))
         if sum(e.t == t for e in self.state_fired) > MAX_EVENTS:
             names = ", ".join(sorted({e.source for e in self.state_fired if e.t == t}))
@@ -1125,6 +1145,7 @@ class Multirate:
         for memory in self.memories:
             memory.reset(t0, until)
         self._peak = 0.0
+        self.shift = RaceShift(len(self.tracks))
 
     def actors(self, kernel: Kernel, on_step: Any = None) -> list[Actor]:
         """One actor per sub-model for the run kernel (the race of appendix C: whoever is
@@ -1201,7 +1222,13 @@ class Multirate:
 
     def error_estimate(self) -> float:
         """The run's global error estimate, in the norm ``tol`` bounds (``|e| / (1 + |y|)`` for
-        the default ``atol = rtol = tol``), without a reference.
+        the default ``atol = rtol = tol``), without a reference: the larger of the plain sum
+        (:meth:`summed_estimate`) and the same errors carried as a time shift of the system
+        (:mod:`~cosimstep.race_drift`), met at the speeds later."""
+        return max(self.summed_estimate(), self.shift.value)
+
+    def summed_estimate(self) -> float:
+        """The plain sum of the local estimates, at its largest.
 
         A sub-model's outputs are wrong by what its inputs were wrong: the interpolation errors
         of its partners' trajectories times its sensitivity (each partner's step control
@@ -1342,6 +1369,7 @@ class _Stepper(Actor):
             # and the error memory is measured again once the whole group is here
             tr.h = min(tr.h, race.h0)
             race._memory_of[self.k].landed(landing)
+            race.shift.jump()  # an event on the clock does not move with the trajectory
         race.watch(self.k)
         if race._on_step is not None:
             race._on_step(tr)

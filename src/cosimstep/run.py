@@ -425,6 +425,9 @@ class MultiRate(Scheme):
                   for tr in tracks}
         steps = np.concatenate([np.array([h for h in tr.steps if h > 0]) for tr in tracks]) \
             if tracks else np.zeros(0)
+        took = getattr(self.controller, "took_estimates", None)
+        if took is not None:  # what follows the run (cosimstep.tighten) reads them there
+            took(race.error_estimate(), race.summed_estimate())
         return Outcome(float(t_end), grid, values, steps, models,
                        {tr.name: tr.calls for tr in tracks},
                        {tr.name: tr.time_in_model for tr in tracks},

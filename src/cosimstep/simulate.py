@@ -130,9 +130,8 @@ def simulate(
     if resume is not None and (store is None or output is not None or estimate == "rerun"):
         raise ValueError("`resume` continues a run in `store` that stored every point: give "
                          "`store`, and no `output_interval` or re-run estimate")
-    multirate = master is not None and master.name == "multirate"
     # the controller as given, before a run moves it: what a repeat starts from
-    pristine = copy.deepcopy(controller) if tighten and may_repeat(controller, multirate) \
+    pristine = copy.deepcopy(controller) if tighten and may_repeat(controller) \
         else None
 
     def once(ctrl: Controller, spent: Budget, resumed: int | None,
@@ -158,7 +157,7 @@ def simulate(
                          richardson=estimate == "richardson", amend=amend)
 
     first = once(controller, budget, resume, config, None)
-    factor = tightening(first.status, first.error_estimate, controller, multirate) \
+    factor = tightening(first.status, first.error_estimate, controller) \
         if pristine is not None else None
     if factor is None:
         return first

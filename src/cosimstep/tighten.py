@@ -20,9 +20,10 @@ accuracy the estimate cannot tell apart from noise (an estimate 1.06 × tol repe
 0.95 × tol moved one run's error from 0.54 to 0.096 × tol).
 
 Only controllers whose estimate was measured within that spread steer by it
-(a controller's ``trusted_estimate``: ``pc``'s), and only under the synchronous masters (the
-multi-rate master's estimate, of what each trajectory's interpolation causes in its consumers,
-is of another kind). The estimate that decides is the run's ``error_estimate``: the summed one
+(a controller's ``trusted_estimate``: ``pc``'s), under the synchronous masters and the
+multi-rate one alike (its estimate carries errors along the motion as a time shift too,
+:mod:`~cosimstep.race_drift`, and was measured so on the suite and the holdout systems). The
+estimate that decides is the run's ``error_estimate``: the summed one
 by default, the companion's or the re-run's where ``simulate(estimate=...)`` asks for them
 (both measured closer to the error than the sum on the suite). The repeat is one, and it is
 kept only if it ended ok with an estimate of its own no higher than the first run's
@@ -46,19 +47,18 @@ MOST = 1e3
 """The repeat's tolerance is at least the run's / ``MOST`` (three decades)."""
 
 
-def may_repeat(controller: Any, multirate: bool) -> bool:
+def may_repeat(controller: Any) -> bool:
     """Whether a run of ``controller`` is ever repeated: its estimate is one measured within
-    ``SPREAD`` of the error (``pc``'s), under a synchronous master."""
-    return getattr(controller, "policy", None) is not None and not multirate \
+    ``SPREAD`` of the error (``pc``'s, under any master)."""
+    return getattr(controller, "policy", None) is not None \
         and getattr(controller, "trusted_estimate", False)
 
 
-def tightening(status: str, estimate: float | None, controller: Any,
-               multirate: bool) -> float | None:
+def tightening(status: str, estimate: float | None, controller: Any) -> float | None:
     """The factor to multiply the tolerances by for the repeat, or ``None`` for no repeat.
 
     ``status``, ``estimate``: the finished run's; ``controller``: the one it ran with."""
-    if status != "ok" or estimate is None or not may_repeat(controller, multirate):
+    if status != "ok" or estimate is None or not may_repeat(controller):
         return None
     ratio = estimate / controller.policy.tol
     if not ratio > THRESHOLD:

@@ -129,6 +129,14 @@ class _PolicyController(Controller):
             # the run's own estimate says the tolerance is spent (StepPolicy.overrun)
             policy.propagation = max(1.0, self._drift.value / self._drift.summed)
 
+    def took_estimates(self, value: float, summed: float) -> None:
+        """A run of the multi-rate master, which steps with this controller's policy but
+        estimates on its own (:meth:`cosimstep.multirate.Multirate.error_estimate`), reports
+        its estimate and plain sum here, so that the repeat (:mod:`cosimstep.tighten`) reads
+        them as it reads a synchronous run's."""
+        self.error_estimate = value
+        self._drift.value, self._drift.summed = value, summed
+
     @property
     def summed_estimate(self) -> float:
         """The plain sum of the local estimates (no time shift), scaled like ``tol``: what
