@@ -157,7 +157,8 @@ def simulate(
                          richardson=estimate == "richardson", amend=amend)
 
     first = once(controller, budget, resume, config, None)
-    factor = tightening(first.status, first.error_estimate, controller) \
+    factor = tightening(first.status, first.error_estimate, controller,
+                        master is not None and master.name == "multirate") \
         if pristine is not None else None
     if factor is None:
         return first

@@ -159,6 +159,11 @@ def test_who_is_repeated_and_by_how_much() -> None:
     assert tighten.tightening("ok", 2e-3, pc) is None  # not past 2 x tol
     assert tighten.tightening("ok", 1e3, pc) == 1e-3  # at most 1000-fold
     assert tighten.tightening("ok", 5e-3, corrector) is None  # untrusted
+    # the multi-rate master: repeated only where the time shift is most of its estimate
+    pc.took_estimates(5e-3, 4e-3)
+    assert tighten.tightening("ok", 5e-3, pc, multirate=True) is None
+    pc.took_estimates(5e-3, 2e-3)
+    assert tighten.tightening("ok", 5e-3, pc, multirate=True) == pytest.approx(0.2)
     assert tighten.tightening("failed", 5e-3, pc) is None
     assert tighten.tightening("ok", None, pc) is None
     assert tighten.tightening("ok", math.nan, pc) is None
