@@ -126,7 +126,7 @@ def _tightened(job: dict, problem: Any, master: MasterOptions, r: Any,
                                                             dict | None]:
     """What ``simulate(tighten=True)`` makes of the run ``r`` by its summed estimate: the kept
     run, its estimate and controller, and the other run of the pair (``None``: no repeat)."""
-    factor = tightening(r.status, estimate, controller, job["kind"] == "multirate")
+    factor = tightening(r.status, estimate, controller, multirate=job["kind"] == "multirate")
     if factor is None:
         return r, estimate, controller, None
     pristine = make_controller("pc", None, job["tol"], **job.get("options", {}))

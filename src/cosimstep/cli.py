@@ -83,16 +83,18 @@ def main() -> None:
               "--opt rtol=..), is aimed at TOL/2, |y| taken at the lowest point each output keeps "
               "returning to; pc lets errors it measured to fade within a "
               "time M count over M only (--opt overrun=true: and tightens its steps once its "
-              "own estimate exceeds TOL). Where pc's own estimate (gauss-seidel or jacobi) "
-              "ends above 2 x TOL, the run is repeated once at TOL reduced by the factor it "
-              "missed by, without the error memory where the summed estimate is mostly a "
-              "time shift (a limit cycle's phase error; see --no-tighten). --json reports the "
+              "own estimate exceeds TOL). Where pc's own estimate ends above 2 x TOL (under "
+              "multirate: and its time shift is most of it), the run is repeated once at "
+              "TOL reduced by the factor it missed by, without the error memory where the "
+              "summed estimate is mostly a time shift (a limit cycle's phase error; see "
+              "--no-tighten). --json reports the "
               "measured error in that norm (error.max_scaled, with a reference) and the "
               "run's own estimate (error_estimate).")
 @click.option("--no-tighten", is_flag=True, help="One run, whatever its own estimate says "
-              "(without it, pc under gauss-seidel or jacobi repeats a run whose estimate "
-              "exceeds 2 x TOL once at a tighter TOL, kept unless it failed or estimates "
-              "itself no better; both runs are stored, --json describes the other one as "
+              "(without it, pc repeats a run whose estimate exceeds 2 x TOL, under multirate "
+              "only where that estimate is mostly a time shift, once at a tighter TOL, kept "
+              "unless it failed or estimates itself no better; both runs are stored, --json "
+              "describes the other one as "
               "`tightened`).")
 @click.option("--estimate", type=click.Choice(["sum", "rerun", "richardson"]), default="sum",
               show_default=True,

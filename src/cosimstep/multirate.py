@@ -542,6 +542,7 @@ class Multirate:
         tr.corrections += dropped
         tr.replaced += dropped
         tr.segment = self._segment_start(tr)
+        self.shift.unread(k)  # the motion it had was the dropped steps'
 
     def _past(self, k: int, t0: float) -> list[int]:
         """The consumers of ``k`` that ran past ``t0`` and would be rolled back by a change of
@@ -625,6 +626,7 @@ class Multirate:
                 rolled |= self._rollback(c, t0, k, rounds)
             else:  # within its tolerance, but an error all the same: the run's estimate has it
                 self.tracks[c].spent_in += kept * self.tracks[c].policy.tol
+                self.shift.lands(c, kept * self.tracks[c].policy.tol, self.tracks[c].h)
         return rolled
 
     def _segment_start(self, tr: Track) -> int:
@@ -752,6 +754,7 @@ class Multirate:
                     continue
                 tr.spent_out += verdict.spent_out
                 tr.spent_in += verdict.spent_in
+                self._lands(k, step, verdict.spent_out, verdict.spent_in)
                 step_try = min(verdict.h_next, h / pieces)
             made += 1
             t = t_end if step == t_end - t else t + step
@@ -797,9 +800,13 @@ class Multirate:
         trial, chain = self._accepted_trial(k, t, landing)
         token, h, lands, y, slope, inputs, extrapolated, left, verdict = trial
         tr.accepted += 1
-        self._spend(tr, h, verdict)
-        self._shift(tr, h, verdict, y)
+        memory = tr.policy.memory
+        fade = math.exp(-h / memory) if math.isfinite(memory) else 1.0
+        self._spend(tr, fade, verdict)
         sudden = _discontinuity(chain, h, verdict, tr.steps[-1] if tr.steps else None)
+        # a step with a jump inside (a discrete output's change, an unannounced
+        # discontinuity) shows no motion: its change is the jump
+        self._shift(tr, h, fade, verdict, None if left is not None or sudden else y)
         tr.steps.append(h)
         if self.on_attempt is not None:
             self.on_attempt(tr.name, t, h, True)
@@ -820,31 +827,35 @@ class Multirate:
             self._memory_of[k].accepted()
         return lands
 
-    def _spend(self, tr: Track, h: float, verdict: _Verdict) -> None:
+    def _spend(self, tr: Track, fade: float, verdict: _Verdict) -> None:
         """Add an accepted step's errors to the run's estimate; where an error memory ``M``
-        was measured, what was spent before fades by ``exp(−h/M)`` (as ``pc``'s sum does)."""
-        memory = tr.policy.memory
-        fade = math.exp(-h / memory) if math.isfinite(memory) else 1.0
+        was measured, what was spent before fades by ``fade = exp(−h/M)`` (as ``pc``'s sum
+        does)."""
         tr.spent_out = fade * tr.spent_out + verdict.spent_out
         tr.spent_in = fade * tr.spent_in + verdict.spent_in
         if fade < 1.0:
             self._peak = max(self._peak, self._estimate_now())
 
-    def _shift(self, tr: Track, h: float, verdict: _Verdict, y: np.ndarray) -> None:
+    def _shift(self, tr: Track, h: float, fade: float, verdict: _Verdict,
+               y: np.ndarray | None) -> None:
         """Hand an accepted step to the estimate with the time shift (:mod:`~cosimstep.
-        race_drift`): its errors where they land, then its motion (before ``y`` is
-        appended)."""
+        race_drift`): its errors where they land, then its motion to ``y`` (``None``: not
+        readable, a jump inside; before ``y`` is appended)."""
         k, pol = tr.index, tr.policy
-        for c in self.consumers[k]:
-            if c != k:
-                self.shift.lands(c, verdict.spent_out, h)
-        self.shift.lands(k, verdict.spent_in, h)
+        self.shift.fades(k, fade)
+        self._lands(k, h, verdict.spent_out, verdict.spent_in)
         velocity = None
-        if h > 0.0 and not tr.discrete:
+        if h > 0.0 and not tr.discrete and y is not None:
             velocity = (y - tr.rows[-1]) / (h * pol.norm_scale(y) / pol.tol)
-        memory = pol.memory
-        fade = math.exp(-h / memory) if math.isfinite(memory) else 1.0
-        self.shift.moved(k, tr.t + h, velocity, fade, memory)
+        self.shift.moved(k, tr.t + h, velocity, pol.memory)
+
+    def _lands(self, k: int, h: float, out: float, own: float) -> None:
+        """Errors of a step of ``k`` of length ``h`` in the estimate with the time shift:
+        ``out`` in each of its consumers (its trajectory's interpolation), ``own`` in itself
+        (inputs it did not resolve), as :meth:`_estimate_now` counts them."""
+        for c in self.consumers[k]:
+            self.shift.lands(c, out, h)
+        self.shift.lands(k, own, h)
 
     def _accepted_trial(self, k: int, t: float, landing: float) -> tuple[tuple, list]:
         """Trial steps of ``k`` from ``t`` until one is accepted: ``(token, h, lands, y,

@@ -25,8 +25,8 @@ rest plus that, at its largest over the run. As in ``pc``, the shift is read onl
 motion over the step exceeds the error (``|v|·h > ε``: at rest there is no motion to shift
 along). An event turns the shift into an ordinary error of its size at the speeds then (a
 failure on the clock does not move with the trajectory). Where the error memory ``M`` was
-measured both fade as the plain sum does: the shift with the run's front (the farthest any
-track has reached), the rest with the consumer's steps.
+measured both fade: the shift with the run's front (the farthest any track has reached), the
+rest with the consumer's steps (the plain sum fades with the producer's).
 
 The run's estimate is the larger of this and the plain sum (where the motion slows, ``|Σ
 τ|·|v|`` falls below what was made, and the plain sum still bounds that). docs/concepts.md
@@ -63,24 +63,30 @@ class RaceShift:
         else:
             self.rest[c] += error
 
-    def moved(self, k: int, end: float, velocity: np.ndarray | None, fade_rest: float,
-              memory: float) -> None:
+    def fades(self, k: int, fade: float) -> None:
+        """Track ``k`` takes a step over which its error memory lets its rest keep ``fade``
+        (called before the step's own errors land, as the plain sum fades what came before)."""
+        self.rest[k] *= fade
+
+    def moved(self, k: int, end: float, velocity: np.ndarray | None, memory: float) -> None:
         """Track ``k`` accepted a step ending at ``end`` with its outputs moving at
-        ``velocity`` (scaled; ``None``: unreadable, discrete or zero length); ``fade_rest``:
-        what ``k``'s error memory lets its rest keep over the step, ``memory`` that memory
-        (for the shift's fade over the front's advance)."""
-        self.rest[k] *= fade_rest
+        ``velocity`` (scaled; ``None``: unreadable — discrete, zero length, or a jump inside);
+        ``memory``: its error memory, for the shift's fade over the front's advance."""
         if end > self.front:
             if math.isfinite(self.front) and math.isfinite(memory):
                 self.shift *= math.exp(-(end - self.front) / memory)
             self.front = end
         if velocity is None or not velocity.size:
-            self.square[k] = self.peak[k] = math.nan
+            self.unread(k)
         else:
             self.square[k] = float(velocity.dot(velocity))
             self.peak[k] = float(np.abs(velocity).max())
         fastest = max((x for x in self.peak if x == x), default=0.0)
         self.value = max(self.value, max(self.rest) + abs(self.shift) * fastest)
+
+    def unread(self, k: int) -> None:
+        """Track ``k``'s motion is unknown (its last step was dropped, or jumped)."""
+        self.square[k] = self.peak[k] = math.nan
 
     def jump(self) -> None:
         """An event: the shift becomes an error like the others, its size at the speeds now,

@@ -425,14 +425,15 @@ class MultiRate(Scheme):
                   for tr in tracks}
         steps = np.concatenate([np.array([h for h in tr.steps if h > 0]) for tr in tracks]) \
             if tracks else np.zeros(0)
+        estimate = race.error_estimate()
         took = getattr(self.controller, "took_estimates", None)
         if took is not None:  # what follows the run (cosimstep.tighten) reads them there
-            took(race.error_estimate(), race.summed_estimate())
+            took(estimate, race.summed_estimate())
         return Outcome(float(t_end), grid, values, steps, models,
                        {tr.name: tr.calls for tr in tracks},
                        {tr.name: tr.time_in_model for tr in tracks},
                        sum(tr.accepted for tr in tracks), sum(tr.rejected for tr in tracks),
-                       race.error_estimate(),
+                       estimate,
                        sorted([*self.fired, *race.state_fired], key=lambda e: e.t))
 
     def error(self, reference: Reference, out: Outcome,

@@ -107,7 +107,8 @@ def simulate(
         result is the whole run (the points before the checkpoint read back from the store).
     tighten:
         Repeat the run once at a tighter tolerance when its own error estimate exceeds twice
-        ``tol`` (controller ``pc``, synchronous masters; :mod:`cosimstep.tighten`): the
+        ``tol`` (controller ``pc``; under the multi-rate master only where its time shift is
+        most of the estimate; :mod:`cosimstep.tighten`): the
         tolerance reduced by the factor the estimate missed by, at most 1000-fold, and where
         the summed estimate's time shift is its larger part (a limit cycle's phase error)
         without the error memory (:func:`~cosimstep.tighten.for_repeat`). The repeat is
@@ -158,7 +159,7 @@ def simulate(
 
     first = once(controller, budget, resume, config, None)
     factor = tightening(first.status, first.error_estimate, controller,
-                        master is not None and master.name == "multirate") \
+                        multirate=master is not None and master.name == "multirate") \
         if pristine is not None else None
     if factor is None:
         return first

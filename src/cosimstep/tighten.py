@@ -20,10 +20,9 @@ accuracy the estimate cannot tell apart from noise (an estimate 1.06 × tol repe
 0.95 × tol moved one run's error from 0.54 to 0.096 × tol).
 
 Only controllers whose estimate was measured within that spread steer by it
-(a controller's ``trusted_estimate``: ``pc``'s), under the synchronous masters and the
-multi-rate one alike (its estimate carries errors along the motion as a time shift too,
-:mod:`~cosimstep.race_drift`, and was measured so on the suite and the holdout systems). The
-estimate that decides is the run's ``error_estimate``: the summed one
+(a controller's ``trusted_estimate``: ``pc``'s): under the synchronous masters, and under
+the multi-rate one where the time shift is most of its estimate (:mod:`~cosimstep.race_drift`,
+:func:`tightening`). The estimate that decides is the run's ``error_estimate``: the summed one
 by default, the companion's or the re-run's where ``simulate(estimate=...)`` asks for them
 (both measured closer to the error than the sum on the suite). The repeat is one, and it is
 kept only if it ended ok with an estimate of its own no higher than the first run's
@@ -54,17 +53,17 @@ def may_repeat(controller: Any) -> bool:
         and getattr(controller, "trusted_estimate", False)
 
 
-def tightening(status: str, estimate: float | None, controller: Any,
-               multirate: bool = False) -> float | None:
+def tightening(status: str, estimate: float | None, controller: Any, *,
+               multirate: bool) -> float | None:
     """The factor to multiply the tolerances by for the repeat, or ``None`` for no repeat.
 
     ``status``, ``estimate``: the finished run's; ``controller``: the one it ran with;
     ``multirate``: it ran under the multi-rate master, which is repeated only where the time
     shift is the larger part of its estimate (:func:`along_motion`). Why: every multi-rate
     run past 10 × tol on the suite and the holdout systems (12 of 145 cells, all relaxation
-    oscillators) was such a run, and its plain sum alone never passed 2 × tol; where the plain
-    sum did, the runs were within the band, and repeating them too (tried) moved 4 suite cells
-    below 0.1 × tol for 1.7 × the calls instead of 1.4 × (docs/concepts.md, "The multi-rate
+    oscillators) was such a run, its plain sum past 2 × tol on one of them only; repeating
+    on the plain sum too (tried) moved 4 more suite cells below 0.1 × tol, runs that were in
+    the band, for 1.7 × the calls instead of 1.4 × (docs/concepts.md, "The multi-rate
     estimate with a time shift")."""
     if status != "ok" or estimate is None or not may_repeat(controller):
         return None
@@ -94,10 +93,11 @@ def scaled(controller: Any, factor: float) -> Any:
 def along_motion(controller: Any) -> bool:
     """Whether the time shift carries more than half of the finished run's summed estimate
     (:mod:`~cosimstep.controllers.drift`, the controller's own, whichever estimate the run
-    reports): that estimate is above twice the plain sum of the local estimates. At the
-    estimate's largest the rest is at most that sum — except for shifts an event turned into
-    ordinary errors, which were shifts before it — so the shift, the error along the motion,
-    is the larger part. ``controller``: the one the run used."""
+    reports; under the multi-rate master :mod:`~cosimstep.race_drift`'s, handed to the
+    controller by the run): that estimate is above twice the plain sum of the local
+    estimates. At the estimate's largest the rest is at most that sum — except for shifts an
+    event turned into ordinary errors, which were shifts before it — so the shift, the error
+    along the motion, is the larger part. ``controller``: the one the run used."""
     value = getattr(controller, "error_estimate", None)
     summed = getattr(controller, "summed_estimate", None)
     return value is not None and summed is not None and value > 2.0 * summed

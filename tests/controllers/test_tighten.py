@@ -155,18 +155,18 @@ def test_a_repeat_that_estimates_itself_worse_leaves_the_first_run_s_result(
 def test_who_is_repeated_and_by_how_much() -> None:
     pc, corrector = cs.make_controller("pc", None, 1e-3), cs.make_controller("corrector",
                                                                              None, 1e-3)
-    assert tighten.tightening("ok", 5e-3, pc) == pytest.approx(0.2)
-    assert tighten.tightening("ok", 2e-3, pc) is None  # not past 2 x tol
-    assert tighten.tightening("ok", 1e3, pc) == 1e-3  # at most 1000-fold
-    assert tighten.tightening("ok", 5e-3, corrector) is None  # untrusted
+    assert tighten.tightening("ok", 5e-3, pc, multirate=False) == pytest.approx(0.2)
+    assert tighten.tightening("ok", 2e-3, pc, multirate=False) is None  # not past 2 x tol
+    assert tighten.tightening("ok", 1e3, pc, multirate=False) == 1e-3  # at most 1000-fold
+    assert tighten.tightening("ok", 5e-3, corrector, multirate=False) is None  # untrusted
     # the multi-rate master: repeated only where the time shift is most of its estimate
     pc.took_estimates(5e-3, 4e-3)
     assert tighten.tightening("ok", 5e-3, pc, multirate=True) is None
     pc.took_estimates(5e-3, 2e-3)
     assert tighten.tightening("ok", 5e-3, pc, multirate=True) == pytest.approx(0.2)
-    assert tighten.tightening("failed", 5e-3, pc) is None
-    assert tighten.tightening("ok", None, pc) is None
-    assert tighten.tightening("ok", math.nan, pc) is None
+    assert tighten.tightening("failed", 5e-3, pc, multirate=False) is None
+    assert tighten.tightening("ok", None, pc, multirate=False) is None
+    assert tighten.tightening("ok", math.nan, pc, multirate=False) is None
     twin = tighten.scaled(cs.make_controller("pc", None, 1e-3, atol=1e-4, rtol=1e-2), 0.1)
     assert (twin.policy.tol, twin.policy.atol, twin.policy.rtol) == pytest.approx(
         (1e-4, 1e-5, 1e-3))
