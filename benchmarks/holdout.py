@@ -283,10 +283,11 @@ def document(rows: list[dict], minutes: float) -> str:
              "them (six limit cycles among them were measured when the repeat was built, and "
              "three were added unseen to check the repeat without the error memory; the "
              "script's docstring says which and how every system is built). Each cell is "
-             "`simulate` as a user calls it: `pc` under Gauss–Seidel with the repeat of a run "
-             "past its tolerance (the default; calls count both runs, \"(repeat)\" where the "
-             "repeat is the result, \"(first)\" where the repeat was not kept and the first "
-             "run is the result), and the multi-rate master; order 2. err/tol in bold: outside "
+             "`simulate` as a user calls it, with the repeat of a run past its tolerance (the "
+             "default; calls count both runs, \"(repeat)\" where the repeat is the result, "
+             "\"(first)\" where the repeat was not kept and the first run is the result): "
+             "`pc` under Gauss–Seidel, and the multi-rate master (repeated only where its "
+             "estimate is mostly a time shift); order 2. err/tol in bold: outside "
              "[0.1, 10]; estimate = the run's own `error_estimate` over the measured error.",
              "",
              "| system | tol | `pc` err/tol | estimate/err | calls | multirate err/tol | "

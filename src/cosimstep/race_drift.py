@@ -23,7 +23,8 @@ output (Rössler's ``z`` between its spikes) the whole error became a shift 100-
 measured error. Met later the shift is ``|Σ τ| · |v|_∞`` then; the estimate is the largest
 rest plus that, at its largest over the run. As in ``pc``, the shift is read only where the
 motion over the step exceeds the error (``|v|·h > ε``: at rest there is no motion to shift
-along). An event turns the shift into an ordinary error of its size at the speeds then (a
+along), and only while every track's motion is known (a discrete-event track has none). An
+event turns the shift into an ordinary error of its size at the speeds then (a
 failure on the clock does not move with the trajectory). Where the error memory ``M`` was
 measured both fade: the shift with the run's front (the farthest any track has reached), the
 rest with the consumer's steps (the plain sum fades with the producer's).
@@ -55,9 +56,9 @@ class RaceShift:
         """``error`` (scaled like tol) lands in consumer ``c`` over a step of length ``h``."""
         if error == 0.0:
             return
-        vv = sum(x for x in self.square if x == x)
+        vv = sum(self.square)  # nan while any track's motion is unknown
         own = self.square[c]
-        if own == own and vv > 0.0 and vv * h * h > error * error:
+        if vv > 0.0 and vv * h * h > error * error:
             self.shift += error * math.sqrt(own) / vv
             self.rest[c] += error * (1.0 - own / vv)
         else:
@@ -70,14 +71,17 @@ class RaceShift:
 
     def moved(self, k: int, end: float, velocity: np.ndarray | None, memory: float) -> None:
         """Track ``k`` accepted a step ending at ``end`` with its outputs moving at
-        ``velocity`` (scaled; ``None``: unreadable — discrete, zero length, or a jump inside);
+        ``velocity`` (scaled; ``None``: unreadable — zero length, or a jump inside; empty: no
+        continuous outputs);
         ``memory``: its error memory, for the shift's fade over the front's advance."""
         if end > self.front:
             if math.isfinite(self.front) and math.isfinite(memory):
                 self.shift *= math.exp(-(end - self.front) / memory)
             self.front = end
-        if velocity is None or not velocity.size:
+        if velocity is None:
             self.unread(k)
+        elif not velocity.size:  # no continuous outputs (a discrete-event track): no motion
+            self.square[k], self.peak[k] = 0.0, math.nan
         else:
             self.square[k] = float(velocity.dot(velocity))
             self.peak[k] = float(np.abs(velocity).max())
@@ -85,7 +89,11 @@ class RaceShift:
         self.value = max(self.value, max(self.rest) + abs(self.shift) * fastest)
 
     def unread(self, k: int) -> None:
-        """Track ``k``'s motion is unknown (its last step was dropped, or jumped)."""
+        """Track ``k``'s motion is unknown (its last step was dropped, or jumped): until it
+        moves again no error is read as a shift, since the system's motion is not known
+        (read without the track, a fast wheel's jump left out of ``|v|``, the quarter car's
+        errors became shifts against the chassis's slow motion alone, 0.0003 × tol
+        delivered after the repeat they caused)."""
         self.square[k] = self.peak[k] = math.nan
 
     def jump(self) -> None:
