@@ -72,8 +72,8 @@ class RaceShift:
     def moved(self, k: int, end: float, velocity: np.ndarray | None, memory: float) -> None:
         """Track ``k`` accepted a step ending at ``end`` with its outputs moving at
         ``velocity`` (scaled; ``None``: unreadable — zero length, or a jump inside; empty: no
-        continuous outputs);
-        ``memory``: its error memory, for the shift's fade over the front's advance."""
+        continuous outputs); ``memory``: its error memory, for the shift's fade over the
+        front's advance."""
         if end > self.front:
             if math.isfinite(self.front) and math.isfinite(memory):
                 self.shift *= math.exp(-(end - self.front) / memory)
