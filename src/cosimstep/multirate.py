@@ -854,7 +854,7 @@ class Multirate:
             velocity = np.zeros(0)
         elif h > 0.0 and y is not None:
             velocity = (y - tr.rows[-1]) / (h * pol.norm_scale(y) / pol.tol)
-        self.shift.moved(k, tr.t + h, velocity, pol.memory)
+        self.shift.moved(k, tr.t + h, h, velocity, pol.memory)
 
     def _lands(self, k: int, h: float, out: float, own: float) -> None:
         """Errors of a step of ``k`` of length ``h`` in the estimate with the time shift:

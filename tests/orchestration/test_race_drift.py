@@ -17,7 +17,7 @@ def _moving(speeds: list[float], end: float = 1.0, memory: float = math.inf) -> 
     """Two one-output tracks at ``end``, moving at ``speeds`` (scaled units per second)."""
     shift = RaceShift(2)
     for k, speed in enumerate(speeds):
-        shift.moved(k, end, np.array([speed]), memory)
+        shift.moved(k, end, 0.1, np.array([speed]), memory)
     return shift
 
 
@@ -25,14 +25,14 @@ def test_an_error_along_the_motion_is_met_at_the_speed_later() -> None:
     shift = _moving([1.0, 0.0])
     shift.lands(0, 0.01, 0.1)  # all of the motion is track 0's: all of it a shift, 0.01 s
     assert shift.shift == pytest.approx(0.01) and shift.rest == [0.0, 0.0]
-    shift.moved(0, 1.1, np.array([10.0]), math.inf)  # the jump: ten times the speed
+    shift.moved(0, 1.1, 0.1, np.array([10.0]), math.inf)  # the jump: ten times the speed
     assert shift.value == pytest.approx(0.1)  # the plain sum would stay at 0.01
 
 
 def test_an_error_across_the_motion_stays_what_it_is() -> None:
     shift = _moving([1.0, 0.0])
     shift.lands(1, 0.01, 0.1)  # track 1 is at rest: nothing of it lies along the motion
-    shift.moved(0, 1.1, np.array([10.0]), math.inf)
+    shift.moved(0, 1.1, 0.1, np.array([10.0]), math.inf)
     assert shift.shift == 0.0 and shift.value == pytest.approx(0.01)
     # an error larger than the motion over its step is no shift either (at rest: nothing to
     # shift along)
@@ -48,25 +48,45 @@ def test_the_shift_is_split_by_the_consumers_share_of_the_motion() -> None:
     assert shift.rest[0] == pytest.approx(0.01 * (1.0 - 9.0 / 25.0))
 
 
+def test_a_chord_across_a_turning_point_is_no_rest_of_the_motion() -> None:
+    # a fast track oscillating: +10 over one step, then a step across its turning point whose
+    # chord is 0; the slow track moves at 0.1 throughout
+    shift = RaceShift(2)
+    for k, speed in enumerate([10.0, 0.1]):
+        shift.moved(k, 1.0, 0.1, np.array([speed]), math.inf)
+    shift.moved(0, 1.1, 0.1, np.array([0.0]), math.inf)
+    shift.moved(1, 1.1, 0.1, np.array([0.1]), math.inf)
+    shift.lands(1, 0.001, 0.1)
+    # the fast track reached |0 - 10| / 0.1 * 0.1 / 2 = 5 within the step: the slow track's
+    # error is 0.1² / (25 + 0.1²) a shift, not the whole of it as against the chords alone
+    assert shift.shift == pytest.approx(0.001 * 0.1 / (25.0 + 0.01))
+    assert shift.rest[1] == pytest.approx(0.001 * (1.0 - 0.01 / 25.01))
+    chords = RaceShift(2)
+    for k, speed in enumerate([0.0, 0.1]):  # the same chords without the step before
+        chords.moved(k, 1.1, 0.1, np.array([speed]), math.inf)
+    chords.lands(1, 0.001, 0.1)
+    assert chords.shift == pytest.approx(0.001 / 0.1)
+
+
 def test_an_event_turns_the_shift_into_an_error_of_its_size_then() -> None:
     shift = _moving([1.0, 0.0])
     shift.lands(0, 0.01, 0.1)
-    shift.moved(0, 1.1, np.array([10.0]), math.inf)
+    shift.moved(0, 1.1, 0.1, np.array([10.0]), math.inf)
     shift.jump()  # the shift, 0.01 s at 10 per second, becomes an ordinary error of 0.1
     assert shift.shift == 0.0 and shift.rest[0] == pytest.approx(0.1)
-    shift.moved(0, 1.2, np.array([100.0]), math.inf)  # no longer met at the speed
+    shift.moved(0, 1.2, 0.1, np.array([100.0]), math.inf)  # no longer met at the speed
     assert shift.value == pytest.approx(0.1)
 
 
 def test_the_shift_fades_with_the_runs_front_where_a_memory_was_measured() -> None:
     shift = _moving([1.0, 0.0], memory=1.0)
     shift.lands(0, 0.01, 0.1)
-    shift.moved(1, 2.0, np.array([0.0]), 1.0)  # the front moves on by 1 s = M
+    shift.moved(1, 2.0, 1.0, np.array([0.0]), 1.0)  # the front moves on by 1 s = M
     assert shift.shift == pytest.approx(0.01 / math.e)
     shift.lands(1, 0.02, 0.1)  # at rest: it stays with track 1 and fades with its steps
     shift.fades(1, 0.5)
     assert shift.rest[1] == pytest.approx(0.01)
-    shift.moved(0, 1.5, np.array([1.0]), 1.0)  # behind the front: no second fade
+    shift.moved(0, 1.5, 0.5, np.array([1.0]), 1.0)  # behind the front: no second fade
     assert shift.shift == pytest.approx(0.01 / math.e)
 
 
