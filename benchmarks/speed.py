@@ -459,8 +459,8 @@ def input_polynomial_rows() -> list[str]:
 
 
 def machine_pace() -> float:
-    """This machine's pace now: the bare ring loop's time per model-step (N = 10, 10,000
-    steps), to set this part's absolute times beside the other parts' (s)."""
+    """This machine's pace now: the bare ring loop's time per model-step (N = 10 lags over
+    1,000 steps), to set this part's absolute times beside the other parts' (s)."""
     med = _median_times({"bare": lambda: bare_ring(10, 1000, 0.01)})
     return med["bare"] / 10_000
 
@@ -496,6 +496,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="measure and rewrite this part alone (target 1)")
     args = parser.parse_args(argv)
     if args.only == "overhead":
+        if OVERHEAD_BEGIN not in (ROOT / "docs" / "benchmarks.md").read_text():
+            parser.error("docs/benchmarks.md has no part 1 to rewrite; run the whole benchmark")
         lines = overhead_lines(overhead_rows(), machine_pace())
         write_section(ROOT / "docs" / "benchmarks.md", "\n".join(lines), OVERHEAD_BEGIN,
                       OVERHEAD_END)

@@ -28,8 +28,9 @@ Each track's motion in the split is the largest speed it reaches within its last
 ``|v| + |a|·h/2`` from the step's chord and the change of the chords: a chord across a
 turning point is near zero while the outputs moved fast on either side, and read so, a slow
 partner's error became a shift of the whole system met at the oscillation's full speed (the
-KPR problems, forced at ω = 100: estimates 2.8–3.6 × tol on runs of 0.37–0.45 × tol,
-repeated to 0.02–0.03 × tol; ``pc`` guards the same case by ``|τ·a| < |v|``). An
+KPR problems, forced at ω = 100: estimates 2.6–4.2 × tol on runs of 0.20–0.45 × tol,
+repeated to 0.015–0.033 × tol; ``pc`` guards the same case by ``|τ·a| < |v|``). The same
+speeds decide whether the motion over the step exceeds the error. An
 event turns the shift into an ordinary error of its size at the speeds then (a
 failure on the clock does not move with the trajectory). Where the error memory ``M`` was
 measured both fade: the shift with the run's front (the farthest any track has reached), the

@@ -68,6 +68,22 @@ def test_a_chord_across_a_turning_point_is_no_rest_of_the_motion() -> None:
     assert chords.shift == pytest.approx(0.001 / 0.1)
 
 
+def test_the_change_of_motion_is_read_only_between_steps_that_join() -> None:
+    shift = RaceShift(1)
+    shift.moved(0, 1.0, 0.1, np.array([10.0]), math.inf)
+    shift.moved(0, 1.3, 0.1, np.array([0.0]), math.inf)  # starts at 1.2, not at 1.0: a gap
+    assert shift.speed[0] == 0.0
+    shift.moved(0, 1.4, 0.1, np.array([4.0]), math.inf)  # joins: (4 + 4 / 0.1 * 0.05)² = 36
+    assert shift.speed[0] == pytest.approx(36.0)
+    for forget in (lambda: shift.unread(0), shift.jump):  # unknown, then read afresh
+        forget()
+        shift.moved(0, 1.5, 0.1, np.array([1.0]), math.inf)
+        assert shift.speed[0] == 1.0
+        shift.moved(0, 1.6, 0.1, np.array([2.0]), math.inf)
+        assert shift.speed[0] == pytest.approx(6.25)  # (2 + 1 / 0.1 * 0.05)²
+        shift.moved(0, 1.4, 0.1, np.array([4.0]), math.inf)  # back to where the next starts
+
+
 def test_an_event_turns_the_shift_into_an_error_of_its_size_then() -> None:
     shift = _moving([1.0, 0.0])
     shift.lands(0, 0.01, 0.1)
