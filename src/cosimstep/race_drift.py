@@ -53,8 +53,7 @@ class RaceShift:
 
     def __init__(self, n: int) -> None:
         self.rest = [0.0] * n  # errors not read as a shift, per consumer, scaled like tol
-        self.square = [math.nan] * n  # |v_k|², each track's last scaled velocity (2-norm)
-        self.peak = [math.nan] * n  # and its largest component (the max norm)
+        self.peak = [math.nan] * n  # each track's last scaled velocity's largest component
         self.speed = [math.nan] * n  # the largest |v_k|² within its last step (see moved)
         self._motion: list[tuple[np.ndarray, float, float] | None] = [None] * n  # (v, h, end)
         self.shift = 0.0  # Σ τ, seconds
@@ -91,9 +90,8 @@ class RaceShift:
         if velocity is None:
             self.unread(k)
         elif not velocity.size:  # no continuous outputs (a discrete-event track): no motion
-            self.square[k], self.peak[k], self.speed[k] = 0.0, math.nan, 0.0
+            self.peak[k], self.speed[k] = math.nan, 0.0
         else:
-            self.square[k] = float(velocity.dot(velocity))
             self.peak[k] = float(np.abs(velocity).max())
             self.speed[k] = self._fastest_within(k, end, h, velocity)
         fastest = max((x for x in self.peak if x == x), default=0.0)
@@ -107,7 +105,7 @@ class RaceShift:
         of the whole system met at the oscillation's full speed (``|v|²`` where ``a`` is not
         known: the first step, or after a jump or a dropped step)."""
         last, self._motion[k] = self._motion[k], (velocity, h, end)
-        speed = math.sqrt(self.square[k])
+        speed = math.sqrt(float(velocity.dot(velocity)))
         if last is not None and abs(end - h - last[2]) <= 1e-9 * h:
             change = velocity - last[0]
             speed += math.sqrt(float(change.dot(change))) / (0.5 * (h + last[1])) * 0.5 * h
@@ -119,7 +117,7 @@ class RaceShift:
         (read without the track, a fast wheel's jump left out of ``|v|``, the quarter car's
         errors became shifts against the chassis's slow motion alone, 0.0003 × tol
         delivered after the repeat they caused)."""
-        self.square[k] = self.peak[k] = self.speed[k] = math.nan
+        self.peak[k] = self.speed[k] = math.nan
         self._motion[k] = None
 
     def jump(self) -> None:
@@ -129,8 +127,8 @@ class RaceShift:
             if peak == peak:
                 self.rest[c] += abs(self.shift) * peak
         self.shift = 0.0
-        n = len(self.square)
-        self.square, self.peak, self.speed = [math.nan] * n, [math.nan] * n, [math.nan] * n
+        n = len(self.speed)
+        self.peak, self.speed = [math.nan] * n, [math.nan] * n
         self._motion = [None] * n
 
 
