@@ -424,22 +424,34 @@ class Multirate:
         return CALIBRATION * np.abs(hi - lo)
 
     def aliased(self, tr: Track, t_new: float, y_new: np.ndarray,
-                slope: np.ndarray | None) -> bool:
-        """Grey box: does the model's own slope at the new point contradict the trajectory?
+                slope: np.ndarray | None) -> np.ndarray | None:
+        """Grey box: the interpolation error the model's own slope at the new point reveals,
+        per output, where it contradicts the trajectory; ``None`` where it does not (or cannot
+        be read).
 
-        Samples too far apart to see an oscillation look smooth; the slope of the cubic through
-        the newest points then disagrees with the model's slope by more than :data:`ALIAS` of
-        the slopes involved. Black boxes cannot be checked (use ``hmax``, e.g. from
+        Samples too far apart to see an oscillation look smooth to every sample-based
+        estimate; the end slope of the cubic through the newest points then disagrees with the
+        model's slope by more than :data:`ALIAS` of the slopes involved (for a signal at ``ω``
+        sampled ``h`` apart that end slope is off by about ``(ωh)³/4``, so this is ``ωh ≳ 1``:
+        samples that no longer resolve it). Only there is the mismatch ``Δ`` read as an error,
+        ``5h|Δ|/32`` (scaled like :meth:`interpolation_error`): for a resolved signal the
+        cubic's error in the middle of its newest interval (``5/128·f⁽⁴⁾h⁴``) is ``5h/32``
+        times its error in the end slope (``f⁽⁴⁾h³/4``), and where ``ωh ≳ 1`` the same
+        expression is of the order of the oscillation's amplitude or more, so it does not
+        understate an aliased error. Black boxes cannot be checked (use ``hmax``, e.g. from
         :func:`~cosimstep.controllers.fft_hmax`).
         """
         if slope is None or len(tr.times) - tr.segment < 3:
-            return False
+            return None
         times = [*tr.times[tr.segment:][-3:], t_new]
         rows = np.vstack([*tr.rows[tr.segment:][-3:], y_new])
         end = taylor_coefficients(times, rows, t_new, 3)[1]
         h = times[-1] - times[-2]
         typical = np.abs(slope) + np.abs(rows[-1] - rows[-2]) / h + tr.policy.scale(y_new) / h
-        return bool(np.any(np.abs(end - slope) > ALIAS * typical))
+        mismatch = np.abs(end - slope)
+        if not np.any(mismatch > ALIAS * typical):
+            return None
+        return CALIBRATION * (5.0 / 32.0) * h * mismatch
 
     def consumer_gain(self, k: int) -> float:
         """The largest measured sensitivity of ``k``'s consumers (a guess until measured)."""
@@ -1091,6 +1103,9 @@ class Multirate:
         pol = tr.policy
         gain = self.consumer_gain(tr.index)
         e = self.interpolation_error(tr, t + h, y)
+        revealed = None if at_event else self.aliased(tr, t + h, y, slope)
+        if revealed is not None:
+            e = np.maximum(e, revealed)
         startup = len(tr.times) - tr.segment < 2
         if startup:  # a one-off error, not a rate
             r = gain * h * e / pol.scale(y)
@@ -1099,24 +1114,24 @@ class Multirate:
         else:
             ratio, i = pol.ratio(gain * h * e, y, h)
             power = 4 + pol.extra_power
-        aliased = self.aliased(tr, t + h, y, slope) and not at_event
         own_gain = tr.gain if tr.gain is not None else INITIAL_GAIN
         fed = own_gain * h * self.input_resolution(tr.index, t, h, inputs)
         unresolved, _ = pol.ratio(fed * pol.scale(y), y, h)
         why = None
-        if aliased:
+        if revealed is not None and gain == 0.0:
             why = "its own slope contradicts the trajectory (aliasing)"
         elif unresolved > 1.0:
             why = f"its inputs vary within the step ({unresolved:.3g}× the allowed error)"
         elif ratio > 1.0 and gain != 0.0:
             name = self.system.output_names[self.system.output_slices[tr.index].start + i]
-            why = f"{name}: interpolation error {e[i]:.3g} × sensitivity {gain:.3g}/s"
+            why = f"{name}: interpolation error {e[i]:.3g} × sensitivity {gain:.3g}/s" + \
+                ("; its own slope contradicts the trajectory" if revealed is not None else "")
         # the step control's memory (PI, mean step) sees only the steps that are kept
         h_next = pol.next_step(h, ratio, power, why is None)
         if unresolved > 1.0:
             h_next = min(h_next, pol.next_step(h, unresolved, 5 + pol.extra_power, False))
-        if aliased:
-            h_next = 0.5 * h
+        if revealed is not None and why is not None:
+            h_next = min(h_next, 0.5 * h)
         norm = pol.norm_scale(y)  # the norm the error is met in (StepPolicy.norm_scale)
         spent_out = 0.0 if gain == 0.0 or startup else \
             float(np.max(gain * h * e / (norm / pol.tol)))

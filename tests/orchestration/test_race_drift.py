@@ -107,8 +107,9 @@ def test_the_shift_fades_with_the_runs_front_where_a_memory_was_measured() -> No
 
 
 # measured (holdout, Van der Pol mu = 5 over 15 s, ending in its second jump, tol 1e-2): the
-# plain sum 0.044 x the error, 11.8 x tol; with the time shift the estimate is 0.48 x a first
-# run's error, mostly shift, so the repeat runs without the error memory and delivers 3.7 x tol
+# first run delivers 4.43 x tol (11.8 x before the aliasing check was read against the
+# tolerance); its estimate, 2.81 x tol, is 5.0 x its plain sum, mostly a time shift, so the
+# repeat runs without the error memory and delivers 3.49 x tol
 def test_a_multirate_run_past_its_tolerance_is_repeated() -> None:
     tol = 1e-2
     system, reference = van_der_pol(5.0)
@@ -116,7 +117,7 @@ def test_a_multirate_run_past_its_tolerance_is_repeated() -> None:
     first = cs.simulate(system, 15.0, controller, cs.MasterOptions("multirate", 2),
                         reference=reference, tighten=False)
     err = first.error.max_scaled
-    assert first.status == "ok" and err / tol > 10.0  # the first run misses the band
+    assert first.status == "ok"
     assert first.error_estimate > 2.0 * tol and first.error_estimate / err > 0.2
     assert first.error_estimate > 2.0 * controller.summed_estimate  # mostly a time shift
     system, reference = van_der_pol(5.0)
@@ -124,4 +125,5 @@ def test_a_multirate_run_past_its_tolerance_is_repeated() -> None:
                          cs.MasterOptions("multirate", 2), reference=reference)
     assert result.tightened["run"] == "first" and "without the error memory" in result.message
     assert 0.1 <= result.error.max_scaled / tol <= 10.0
+    assert result.error.max_scaled < err
     assert result.calls_spent == result.calls_total + first.calls_total

@@ -141,10 +141,11 @@ def test_the_multirate_pump_delivers_its_tolerance(examples, tol) -> None:
     assert 0.1 <= result.error.max_scaled / tol <= 10.0, result.error.max_scaled / tol
 
 
-# failure seed 6 at tol 1e-4, measured: 0.085 × tol with the PI control, 1.34 × with the
+# failure seed 6 at tol 1e-4, measured: 0.26 × tol with the PI control, 0.62 × with the
 # example's trend and unbiased aim, followed once the probes measured the plant settling
 # (docs/concepts.md, "Multi-rate: a trend only where the system settles"; 1.8 × while the
-# trend was forecast per step)
+# trend was forecast per step; 0.085 and 1.34 × before the aliasing check was read against
+# the tolerance, "The aliasing check read against the tolerance")
 def test_the_multirate_pump_follows_the_settling_where_asked(examples) -> None:
     spec = cs.load_system(examples / "pump_failure.toml",
                           overrides={"parameters": {"health.seed": 6, "fail_seed": 6.0}})
@@ -157,7 +158,7 @@ def test_the_multirate_pump_follows_the_settling_where_asked(examples) -> None:
                              MULTIRATE, reference=spec.reference)
         assert result.success, result.message
         ratios.append(result.error.max_scaled / 1e-4)
-    assert ratios[1] >= 3.0 * ratios[0] and 0.3 <= ratios[1] <= 10.0, ratios
+    assert ratios[1] >= 2.0 * ratios[0] and 0.3 <= ratios[1] <= 10.0, ratios
 
 
 def test_a_probe_reads_only_its_own_group(examples) -> None:
