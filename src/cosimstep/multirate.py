@@ -80,7 +80,8 @@ sub-model rolled back by a correction of round ``r`` re-runs its steps as round 
 until it is past the time it was rolled back from (:attr:`Track.resync`)."""
 MAX_PIECES = 64  # a pending step is re-run as at most this many steps
 FAILED_TRIAL_SHRINK = 0.25  # step factor after a trial step the sub-model failed on
-ALIAS = 0.3  # relative slope mismatch beyond which a grey-box step counts as unresolved
+ALIAS = 0.3  # relative slope mismatch beyond which a grey-box output's samples no longer
+# resolve it, and the mismatch is read as an interpolation error (Multirate.slope_error)
 
 
 @dataclass(frozen=True)
@@ -423,11 +424,11 @@ class Multirate:
         lo = taylor_coefficients(times[1:], rows[1:], mid, len(times) - 2)[0]
         return CALIBRATION * np.abs(hi - lo)
 
-    def aliased(self, tr: Track, t_new: float, y_new: np.ndarray,
-                slope: np.ndarray | None) -> np.ndarray | None:
+    def slope_error(self, tr: Track, t_new: float, y_new: np.ndarray,
+                    slope: np.ndarray | None) -> np.ndarray | None:
         """Grey box: the interpolation error the model's own slope at the new point reveals,
-        per output, where it contradicts the trajectory; ``None`` where it does not (or cannot
-        be read).
+        per output, where some output's slope contradicts its trajectory; ``None`` where none
+        does, or where it cannot be read.
 
         Samples too far apart to see an oscillation look smooth to every sample-based
         estimate; the end slope of the cubic through the newest points then disagrees with the
@@ -438,7 +439,10 @@ class Multirate:
         cubic's error in the middle of its newest interval (``5/128·f⁽⁴⁾h⁴``) is ``5h/32``
         times its error in the end slope (``f⁽⁴⁾h³/4``), and where ``ωh ≳ 1`` the same
         expression is of the order of the oscillation's amplitude or more, so it does not
-        understate an aliased error. Black boxes cannot be checked (use ``hmax``, e.g. from
+        understate an aliased error. The track's outputs are read together: once one of them
+        contradicts its trajectory, every output's mismatch counts (measured against counting
+        only the contradicting outputs': docs/concepts.md, "The aliasing check read against
+        the tolerance"). Black boxes cannot be checked (use ``hmax``, e.g. from
         :func:`~cosimstep.controllers.fft_hmax`).
         """
         if slope is None or len(tr.times) - tr.segment < 3:
@@ -1096,14 +1100,17 @@ class Multirate:
                slope: np.ndarray | None, at_event: bool) -> _Verdict:
         """Accept or reject a trial step ``[t, t + h]`` of ``tr`` and propose the next step.
 
-        Three checks: consumers can interpolate the new trajectory (its interpolation error ×
-        their sensitivity), the step resolved its own inputs (:meth:`input_resolution` × its
-        sensitivity), and — grey box — its own slope agrees with the trajectory (aliasing).
+        Two checks: consumers can interpolate the new trajectory (its interpolation error ×
+        their sensitivity; grey box: the larger of the samples' estimate and what the model's
+        own slope reveals, :meth:`slope_error`), and the step resolved its own inputs
+        (:meth:`input_resolution` × its sensitivity). A step whose slope reveals aliasing and
+        whose outputs no consumer reads with a sensitivity (gain 0: no consumers) is rejected
+        outright; any rejection of a step whose slope revealed aliasing at least halves it.
         """
         pol = tr.policy
         gain = self.consumer_gain(tr.index)
         e = self.interpolation_error(tr, t + h, y)
-        revealed = None if at_event else self.aliased(tr, t + h, y, slope)
+        revealed = None if at_event else self.slope_error(tr, t + h, y, slope)
         if revealed is not None:
             e = np.maximum(e, revealed)
         startup = len(tr.times) - tr.segment < 2
@@ -1117,15 +1124,7 @@ class Multirate:
         own_gain = tr.gain if tr.gain is not None else INITIAL_GAIN
         fed = own_gain * h * self.input_resolution(tr.index, t, h, inputs)
         unresolved, _ = pol.ratio(fed * pol.scale(y), y, h)
-        why = None
-        if revealed is not None and gain == 0.0:
-            why = "its own slope contradicts the trajectory (aliasing)"
-        elif unresolved > 1.0:
-            why = f"its inputs vary within the step ({unresolved:.3g}× the allowed error)"
-        elif ratio > 1.0 and gain != 0.0:
-            name = self.system.output_names[self.system.output_slices[tr.index].start + i]
-            why = f"{name}: interpolation error {e[i]:.3g} × sensitivity {gain:.3g}/s" + \
-                ("; its own slope contradicts the trajectory" if revealed is not None else "")
+        why = self._rejection(tr, i, e, gain, ratio, unresolved, revealed)
         # the step control's memory (PI, mean step) sees only the steps that are kept
         h_next = pol.next_step(h, ratio, power, why is None)
         if unresolved > 1.0:
@@ -1136,6 +1135,22 @@ class Multirate:
         spent_out = 0.0 if gain == 0.0 or startup else \
             float(np.max(gain * h * e / (norm / pol.tol)))
         return _Verdict(h_next, why, spent_out, fed * pol.tol, ratio, power)
+
+    def _rejection(self, tr: Track, i: int, e: np.ndarray, gain: float, ratio: float,
+                   unresolved: float, revealed: np.ndarray | None) -> str | None:
+        """Why :meth:`_judge` rejects the step (``None``: it does not), for the message a
+        rejected attempt leaves (``i``: the output that decided ``ratio``; ``revealed``: what
+        the slope revealed, :meth:`slope_error`)."""
+        if revealed is not None and gain == 0.0:
+            return "its own slope contradicts the trajectory (aliasing)"
+        if unresolved > 1.0:
+            return f"its inputs vary within the step ({unresolved:.3g}× the allowed error)"
+        if ratio > 1.0 and gain != 0.0:
+            name = self.system.output_names[self.system.output_slices[tr.index].start + i]
+            by_slope = revealed is not None and 0.0 < revealed[i] >= e[i]
+            return f"{name}: interpolation error {e[i]:.3g} × sensitivity {gain:.3g}/s" + \
+                ("; its own slope contradicts the trajectory" if by_slope else "")
+        return None
 
     def _failed_trial(self, tr: Track, exc: SubModelError, token: Any, t: float,
                       h: float) -> float:
