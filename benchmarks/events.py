@@ -11,7 +11,8 @@ Three tables:
 - the pump-failure loop (``examples/pump_failure.toml``): err/tol for ``pc`` and multirate, at
   the example's failure time and at 19 others (the failure law's seed).
 
-Run: ``python benchmarks/events.py`` (about a minute on 2 cores).
+Run: ``python benchmarks/events.py`` (about twenty minutes on 2 cores, most of it the 304 runs
+of the pump's failure seeds).
 """
 
 from __future__ import annotations
