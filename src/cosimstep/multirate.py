@@ -34,6 +34,7 @@ import bisect
 import dataclasses
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -265,20 +266,55 @@ class Multirate:
 
     def _trajectory(self, j: int, at: np.ndarray,
                     stencil: int = STENCIL) -> tuple[np.ndarray, bool]:
-        """Values of global output ``j`` at times ``at`` from its owner's stored points.
+        """Values of global output ``j`` at times ``at`` from its owner's stored points, and
+        whether any of them was extrapolated (:meth:`_owned`, for one output)."""
+        owner, col = self._column[j]
+        values, beyond = self._owned(owner, [col], at, stencil)
+        return values[:, 0], beyond
+
+    def _signals(self, cols: Sequence[int], at: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Global outputs ``cols`` at times ``at`` (rows), and whether any was extrapolated:
+        the outputs of one owner read together (:meth:`_owned`), each exactly as
+        :meth:`_trajectory` reads it alone."""
+        out = np.empty((len(at), len(cols)))
+        groups: dict[int, tuple[list[int], list[int]]] = {}
+        for i, j in enumerate(cols):
+            owner, col = self._column[j]
+            where, which = groups.setdefault(owner, ([], []))
+            where.append(i)
+            which.append(col)
+        extrapolated = False
+        for owner, (where, which) in groups.items():
+            values, beyond = self._owned(owner, which, at)
+            out[:, where] = values
+            extrapolated |= beyond
+        return out, extrapolated
+
+    def _owned(self, owner: int, cols: list[int], at: np.ndarray,
+               stencil: int = STENCIL) -> tuple[np.ndarray, bool]:
+        """Outputs ``cols`` of sub-model ``owner`` at times ``at`` (one column each) from its
+        stored points, and whether any of them was extrapolated.
 
         Within the owner's trajectory: a local cubic through the nearest stored points of the
         same segment (between time events), or the chosen interpolation method over them. Beyond
         the owner's last point: the degree-``order`` extrapolation through its last points.
-        Returns the values and whether any of them was extrapolated.
+        The stencil, the weights and the offsets depend on the owner's times only, so they are
+        worked out once for all ``cols``; every column's own arithmetic is that of one output
+        read alone, in the same order.
         """
-        owner, col = self._column[j]
         tr = self.tracks[owner]
         times = tr.times
         t0 = float(at[0])
         lo, hi = self._segment_bounds(t0 + 1e-12 * max(1.0, abs(t0)), owner)
-        if tr.discrete or (tr.index in self.changing and col in self.changing[tr.index]):
-            return self._held(tr, col, at, hi), False
+        out = np.empty((len(at), len(cols)))
+        discrete = self.changing.get(tr.index) if not tr.discrete else None
+        held = [c for c, col in enumerate(cols) if tr.discrete or (
+            discrete is not None and col in discrete)]
+        for c in held:
+            out[:, c] = self._held(tr, cols[c], at, hi)
+        rest = [c for c in range(len(cols)) if c not in held]
+        if not rest:
+            return out, False
         first, end = _segment_range(times, lo, hi)
         beyond = bool(at[-1] > times[-1] + 1e-12 * max(1.0, abs(times[-1])))
         if beyond:  # extrapolate from the newest points of the segment
@@ -294,17 +330,25 @@ class Multirate:
             # the window spans several of the owner's steps: one stencil per point, each
             # around its own time (a single stencil at the window's end would extrapolate
             # backwards over the owner's earlier steps)
-            return np.array([self._trajectory(j, np.array([s]), stencil)[0][0]
-                             for s in at]), False
+            wanted = [cols[c] for c in rest]
+            for i, s in enumerate(at):
+                out[i, rest] = self._owned(owner, wanted, np.array([s]), stencil)[0][0]
+            return out, False
         pts = times[start:last]
-        vals = np.array([r[col] for r in tr.rows[start:last]])
+        block = np.array(tr.rows[start:last])
         if self.method is not None and not beyond and len(pts) > 1:
-            slopes = (np.array([s[col] for s in tr.slopes[start:last]])
-                      if tr.slopes else None)
             hermite = self.method.name == "hermite"
-            curve = self.method.fit(pts, vals, slopes if hermite else None)
-            return np.asarray(curve(at), dtype=float), False
-        return _through(pts, vals, t0, at), beyond
+            slopes = np.array(tr.slopes[start:last]) if tr.slopes and hermite else None
+            for c in rest:
+                curve = self.method.fit(pts, block[:, cols[c]].copy(), None if slopes is None
+                                        else slopes[:, cols[c]].copy())
+                out[:, c] = np.asarray(curve(at), dtype=float)
+            return out, False
+        weights = weight_matrix(tuple([float(ti) - t0 for ti in pts]))
+        offsets = (at - t0).tolist()
+        for c in rest:
+            out[:, c] = _through(weights, block[:, cols[c]].copy(), offsets)
+        return out, beyond
 
     @staticmethod
     def _held(tr: Track, col: int, at: np.ndarray, hi: float) -> np.ndarray:
@@ -321,18 +365,23 @@ class Multirate:
 
     def inputs_over(self, k: int, t: float, h: float) -> tuple[np.ndarray, bool]:
         """Model ``k``'s inputs at ``t + NODES·h`` (rows) and whether any were extrapolated."""
+        return self._inputs(k, t + NODES * h)
+
+    def _inputs(self, k: int, at: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Model ``k``'s inputs at the times ``at`` (rows) from its sources' trajectories,
+        and whether any were extrapolated (an input with gain 0 is its offset)."""
         system = self.system
-        src, a, b = np.asarray(system.src[k], dtype=int), system.a[k], system.b[k]
-        at = t + NODES * h
-        out = np.empty((len(NODES), len(src)))
-        extrapolated = False
-        for i, j in enumerate(src):
+        a, b = system.a[k], system.b[k]
+        out = np.empty((len(at), len(a)))
+        live = [i for i in range(len(a)) if a[i] != 0.0]
+        for i in range(len(a)):
             if a[i] == 0.0:
                 out[:, i] = b[i]
-                continue
-            v, beyond = self._trajectory(int(j), at)
-            out[:, i] = a[i] * v + b[i]
-            extrapolated |= beyond
+        if not live:
+            return out, False
+        values, extrapolated = self._signals([int(system.src[k][i]) for i in live], at)
+        for c, i in enumerate(live):
+            out[:, i] = a[i] * values[:, c] + b[i]
         return out, extrapolated
 
     def input_resolution(self, k: int, t: float, h: float, inputs: np.ndarray) -> float:
@@ -344,16 +393,11 @@ class Multirate:
         oscillation) is not seen by the partner-facing estimate; this is the check that the
         step resolved what it was fed.
         """
-        system = self.system
-        src, a, b = np.asarray(system.src[k], dtype=int), system.a[k], system.b[k]
-        if not len(src):
+        if not len(self.system.src[k]):
             return 0.0
         coef = taylor_coefficients(list(t + NODES * h), inputs, t, 3)
         fed = evaluate_small(coef, (BETWEEN * h).tolist())
-        true = np.empty_like(fed)
-        at = t + BETWEEN * h
-        for i, j in enumerate(src):
-            true[:, i] = b[i] if a[i] == 0.0 else a[i] * self._trajectory(int(j), at)[0] + b[i]
+        true = self._inputs(k, t + BETWEEN * h)[0]
         scale = self.tracks[k].policy.scale(true)
         # what rounding leaves between two evaluations of the same values is no variation a
         # shorter step could resolve: at the ship plant's hit a valve position held constant
@@ -1002,10 +1046,7 @@ class Multirate:
 
     def _inputs_at(self, k: int, t: float) -> np.ndarray:
         """Model ``k``'s inputs at ``t`` from its sources' trajectories."""
-        system = self.system
-        at = np.array([t])
-        return np.array([b if a == 0.0 else a * self._trajectory(int(j), at)[0][0] + b
-                         for j, a, b in zip(system.src[k], system.a[k], system.b[k])])
+        return self._inputs(k, np.array([t]))[0][0]
 
     def _indicator(self, m: int, t: float) -> float:
         model: DiscreteEventModel = self.system.models[m]  # type: ignore[assignment]
@@ -1296,10 +1337,10 @@ class Multirate:
     def values_at(self, k: int, times: np.ndarray) -> np.ndarray:
         """Model ``k``'s outputs at arbitrary ``times`` within its trajectory."""
         sl = self.system.output_slices[k]
-        out = np.empty((len(times), sl.stop - sl.start))
+        cols = list(range(sl.stop - sl.start))
+        out = np.empty((len(times), len(cols)))
         for i, t in enumerate(times):
-            for c, j in enumerate(range(sl.start, sl.stop)):
-                out[i, c] = self._trajectory(j, np.array([t]))[0][0]
+            out[i] = self._owned(k, cols, np.array([t]))[0][0]
         return out
 
 
@@ -1344,20 +1385,21 @@ def _beyond(s: float, t: float) -> bool:
     return s > t * (1 + 1e-12) + 1e-15
 
 
-def _through(times: list[float], values: np.ndarray, t0: float, at: np.ndarray) -> np.ndarray:
-    """The polynomial through one signal's ``values`` at ``times``, at the times ``at``:
-    :func:`~cosimstep.extrapolation.taylor_coefficients` at ``t0`` and
+def _through(weights: np.ndarray, values: np.ndarray, offsets: list[float]) -> list[float]:
+    """The polynomial through one signal's ``values`` (``weights``: :func:`weight_matrix` of
+    their times less the expansion point ``t0``) at ``t0 + offsets``:
+    :func:`~cosimstep.extrapolation.taylor_coefficients` and
     :func:`~cosimstep.extrapolation.evaluate_small`, written out for one signal (the same
     operations in the same order, bit for bit, without their generality)."""
-    c = weight_matrix(tuple([float(ti) - t0 for ti in times])).dot(values[:, None])[:, 0].tolist()
+    c = weights.dot(values[:, None])[:, 0].tolist()
     out = []
-    for dt in (at - t0).tolist():
+    for dt in offsets:
         term, value = 1.0, c[0]
         for k in range(1, len(c)):
             term = term * (dt / k)
             value = value + term * c[k]
         out.append(value)
-    return np.array(out)
+    return out
 
 
 def _segment_range(times: list[float], lo: float, hi: float) -> tuple[int, int]:
