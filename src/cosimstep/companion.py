@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from cosimstep.controllers.coupling import _predictor_order
 from cosimstep.errors import SubModelError
 from cosimstep.loops import LoopContext
 from cosimstep.masters import Master
@@ -165,6 +166,6 @@ class Companion:
             return ctx.step(t, h)
         q = min(ctx.order, len(ctx.times) - 1)
         token = self.master.save()
-        y_p = ctx.step(t, h)
+        y_p = ctx.step(t, h, order=_predictor_order(q))
         self.master.restore(token)
         return ctx.step(t, h, order=q + 1, end=y_p)

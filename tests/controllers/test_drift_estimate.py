@@ -216,8 +216,8 @@ def test_adaptive_tol_starts_each_run_at_the_run_s_tolerance() -> None:
     assert controller._inner.policy.tol == TOL and controller._inner._budget == TOL
 
 
-# measured (pc, gauss-seidel order 2, the suite's 12 s): without the tightening 15.5 x tol in
-# 752 calls, estimate 2.9 x tol; with it 7.2 x tol in 852 calls (one run each: the repeat of
+# measured (pc, gauss-seidel order 2, the suite's 12 s): without the tightening 14.7 x tol in
+# 692 calls, estimate 2.95 x tol; with it 6.9 x tol in 856 calls (one run each: the repeat of
 # a run past its tolerance, which would act on the first, is off)
 def test_van_der_pol_stays_within_ten_times_the_tolerance_by_its_own_estimate() -> None:
     problem = suite.get("van_der_pol")
