@@ -48,9 +48,9 @@ def _predictor_order(q: int) -> int | None:
     """The extrapolation order of ``pc``'s predictor when the history supports order ``q``
     (the corrector interpolates at ``q + 1``).
 
-    At a segment's second and third steps the history is shorter than the master's order, and
-    the master's default would interpolate the outputs a Gauss–Seidel receiver reads fresh
-    through one more point than it extrapolates the others with: the same curve as the
+    At a segment's second step the history (two points) is shorter than the master's order
+    (2), and the master's default would interpolate the outputs a Gauss–Seidel receiver reads
+    fresh through one more point than it extrapolates the others with: the same curve as the
     corrector's, so the two runs differed only by the other inputs and the estimate was blind to
     these (measured on ``kpr_forced``, tol 1e-5: the second step, 5x the first, was estimated at
     0.02 of its share and left a defect of 2x tol that nothing damps). At order ``q`` the two
