@@ -23,8 +23,8 @@ def _van_der_pol(tol: float, feedback: bool, overrun: bool = False) -> cs.Simula
 
 def test_feedback_keeps_the_van_der_pol_oscillator_within_the_tolerance() -> None:
     """The summed local estimates miss the phase error that every jump of the cycle
-    multiplies by its slope; the companion sees it. Measured at tol 1e-4: 18.1 x tol and 688
-    calls without the feedback, 4.96 x tol and 960 calls (+356 the companion's) with it.
+    multiplies by its slope; the companion sees it. Measured at tol 1e-4: 14.7 x tol and 692
+    calls without the feedback, 4.64 x tol and 1052 calls (+404 the companion's) with it.
     (``overrun``, opt-in, tightens the control by the run's own estimate instead; off here,
     and so is the repeat of a run past its tolerance, so that the plain run is the one
     feedback is for.)"""

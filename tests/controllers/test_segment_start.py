@@ -4,8 +4,8 @@
 A Gauss–Seidel receiver reads its source's outputs fresh, interpolated through the source's
 new values. With two stored points the master's default predictor (order 2) interpolated them
 through three points, exactly as the corrector (order ``q + 1 = 2``) does, so the two runs
-differed only in the other inputs and the step's estimate was blind to these. The second step,
-five times the first, then left an error that an integrator never forgets.
+differed only in the extrapolated inputs and the step's estimate was blind to the fresh ones.
+The second step, five times the first, then left an error that an integrator never forgets.
 """
 
 from __future__ import annotations
@@ -50,10 +50,11 @@ def test_the_predictor_extrapolates_at_the_order_the_history_supports() -> None:
 
 
 def test_the_second_step_of_a_segment_is_judged_on_the_inputs_read_fresh() -> None:
-    """Measured at tol 1e-6, 1 s: before, the second step (5e-4 s, 5x the first) left 0.12 x
-    tol in x after two steps (1.2 x tol at 1e-7: ten times more per decade of tol, as the
-    step did not shrink); now its estimate sees the source's curve, the step is 7.2e-5 s and
-    the error after it 6e-4 x tol. The whole run stays within tol either way (0.15 → 0.012)."""
+    """Measured at tol 1e-6, 1 s, the largest error over the outputs: with the master's
+    default predictor order the second step (5e-4 s, 5x the first) left 0.12 x tol after two
+    steps (1.2 x tol at 1e-7: ten times more per decade of tol, as the step did not shrink)
+    and the run 0.15 x tol; judged on the source's curve, the step is 7.2e-5 s, the error
+    after it 6e-4 x tol and the run's 0.012 x tol."""
     tol = 1e-6
     system, reference = _chain()
     result = cs.simulate(system, 1.0, cs.make_controller("pc", None, tol),
@@ -63,4 +64,4 @@ def test_the_second_step_of_a_segment_is_judged_on_the_inputs_read_fresh() -> No
     assert first == 1e-4 and second < first  # judged, and shortened
     after_two = np.abs(result.values[2] - result.reference[2]).max()
     assert after_two < 0.01 * tol
-    assert result.error.max_scaled < 0.05 * tol  # no longer set by the start (before: 0.15)
+    assert result.error.max_scaled < 0.05 * tol  # not set by the start (0.15 x if it were)

@@ -3,8 +3,7 @@
 Measured on the suite's Van der Pol oscillator (pc, Gauss–Seidel, order 2, 12 s): at tol 1e-4
 one run gives 14.7 x tol in 692 calls with its own estimate at 2.95 x tol; the repeat at
 3.38e-5, without the error memory, gives 0.89 x tol in 888 calls more. At 1e-3 the estimate
-is 1.24 x tol, below the threshold of 2, and the run
-stands alone.
+is 1.24 x tol, below the threshold of 2, and the run stands alone.
 """
 
 from __future__ import annotations

@@ -98,8 +98,8 @@ def test_a_cut_correction_at_the_end_still_reaches_the_end(until) -> None:
 
 
 # issue 13, item 6 (kpr_forced over 2 s, tol 1e-4; measured): multirate source / fast / slow
-# calls 1,235 / 2,077 / 112 (slow/fast 0.054), 3,424 in all at 0.58 x tol; pc 3,548 per
-# sub-model (10,644) at 0.58 x tol. At tol 1e-3 over 2 s the slow part's start-up steps weigh
+# calls 1,235 / 2,077 / 112 (slow/fast 0.054), 3,424 in all at 0.58 x tol; pc 3,566 per
+# sub-model (10,698) at 0.58 x tol. At tol 1e-3 over 2 s the slow part's start-up steps weigh
 # more (slow/fast 0.103, 0.060 over the suite's 5 s); over the quick horizon (0.5 s) more still.
 def test_multirate_lets_the_slow_part_of_separated_scales_take_long_steps() -> None:
     problem = suite.get("kpr_forced")

@@ -51,13 +51,17 @@ def _predictor_order(q: int) -> int | None:
     At a segment's second step the history (two points) is shorter than the master's order
     (2), and the master's default would interpolate the outputs a Gauss–Seidel receiver reads
     fresh through one more point than it extrapolates the others with: the same curve as the
-    corrector's, so the two runs differed only by the other inputs and the estimate was blind to
-    these (measured on ``kpr_forced``, tol 1e-5: the second step, 5x the first, was estimated at
-    0.02 of its share and left a defect of 2x tol that nothing damps). At order ``q`` the two
-    curves differ by a degree there too. The first step (``q = 0``) keeps the master's default:
-    grey-box slopes where the sub-models give them; inputs held instead make the estimate the
-    error of a zeroth-order hold, a power of ``h`` above the corrector's, which shrank the first
-    step below ``hmin`` at tol 1e-8.
+    corrector's, so the two runs differed only in the extrapolated inputs and the estimate was
+    blind to the fresh ones (measured on ``kpr_forced``, tol 1e-5: the second step, 5x the
+    first, was estimated at 0.02 of its share and left a defect of 2x tol that nothing damps).
+    The same held for every input of an iterated step (strong coupling), whose predictor
+    converged to the corrector's curve. At order ``q`` the two curves differ by a degree there
+    too. From the third step on ``q`` is the master's order, and with extrapolation 0 or 1 it
+    always is: nothing changes there. The first step (``q = 0``) keeps the master's default:
+    grey-box slopes where the sub-models give them (fresh and iterated inputs stay unjudged on
+    that one step); inputs held instead make the estimate the error of a zeroth-order hold,
+    one power of ``h`` larger than the corrector's, which shrank the first step below ``hmin``
+    at tol 1e-8.
     """
     return q if q > 0 else None
 
