@@ -303,7 +303,6 @@ class Multirate:
         read alone, in the same order.
         """
         tr = self.tracks[owner]
-        times = tr.times
         t0 = float(at[0])
         lo, hi = self._segment_bounds(t0 + 1e-12 * max(1.0, abs(t0)), owner)
         out = np.empty((len(at), len(cols)))
@@ -315,18 +314,8 @@ class Multirate:
         rest = [c for c in range(len(cols)) if c not in held]
         if not rest:
             return out, False
-        first, end = _segment_range(times, lo, hi)
-        beyond = bool(at[-1] > times[-1] + 1e-12 * max(1.0, abs(times[-1])))
-        if beyond:  # extrapolate from the newest points of the segment
-            start, last = max(first, len(times) - (self.order + 1)), len(times)
-        else:  # the stencil points around the window
-            width = stencil if self.method is None else max(stencil, self.method.window)
-            last = min(end, bisect.bisect_left(times, float(at[-1])) + stencil // 2)
-            start = max(first, last - width)
-            last = min(end, start + width)
-        if not beyond and self.method is None and len(at) > 1 \
-                and bisect.bisect_right(times, float(at[-1])) - bisect.bisect_left(
-                    times, float(at[0])) > 2:
+        window = self._window(tr, at, lo, hi, stencil)
+        if window is None:
             # the window spans several of the owner's steps: one stencil per point, each
             # around its own time (a single stencil at the window's end would extrapolate
             # backwards over the owner's earlier steps)
@@ -334,21 +323,50 @@ class Multirate:
             for i, s in enumerate(at):
                 out[i, rest] = self._owned(owner, wanted, np.array([s]), stencil)[0][0]
             return out, False
-        pts = times[start:last]
+        start, last, beyond = window
+        out[:, rest] = self._fill(tr, [cols[c] for c in rest], at, start, last, beyond)
+        return out, beyond
+
+    def _fill(self, tr: Track, cols: list[int], at: np.ndarray, start: int, last: int,
+              beyond: bool) -> np.ndarray:
+        """Outputs ``cols`` at ``at`` (one column each) from the owner's points ``[start,
+        last)``: the interpolation method's curve within the trajectory, else the polynomial
+        through the points (its weights and offsets worked out once for all columns)."""
+        out = np.empty((len(at), len(cols)))
+        pts = tr.times[start:last]
         block = np.array(tr.rows[start:last])
         if self.method is not None and not beyond and len(pts) > 1:
             hermite = self.method.name == "hermite"
             slopes = np.array(tr.slopes[start:last]) if tr.slopes and hermite else None
-            for c in rest:
-                curve = self.method.fit(pts, block[:, cols[c]].copy(), None if slopes is None
-                                        else slopes[:, cols[c]].copy())
+            for c, col in enumerate(cols):
+                curve = self.method.fit(pts, block[:, col].copy(), None if slopes is None
+                                        else slopes[:, col].copy())
                 out[:, c] = np.asarray(curve(at), dtype=float)
-            return out, False
+            return out
+        t0 = float(at[0])
         weights = weight_matrix(tuple([float(ti) - t0 for ti in pts]))
         offsets = (at - t0).tolist()
-        for c in rest:
-            out[:, c] = _through(weights, block[:, cols[c]].copy(), offsets)
-        return out, beyond
+        for c, col in enumerate(cols):
+            out[:, c] = _through(weights, block[:, col].copy(), offsets)
+        return out
+
+    def _window(self, tr: Track, at: np.ndarray, lo: float, hi: float,
+                stencil: int) -> tuple[int, int, bool] | None:
+        """The owner's stored points ``[start, last)`` that :meth:`_owned` reads for times
+        ``at`` within the segment ``[lo, hi]``, and whether ``at`` reaches past its last point
+        (then the newest points, to extrapolate from); ``None`` when, without an interpolation
+        method, the window spans several of the owner's steps (one stencil per point then)."""
+        times = tr.times
+        first, end = _segment_range(times, lo, hi)
+        if at[-1] > times[-1] + 1e-12 * max(1.0, abs(times[-1])):
+            return max(first, len(times) - (self.order + 1)), len(times), True
+        if self.method is None and len(at) > 1 and bisect.bisect_right(
+                times, float(at[-1])) - bisect.bisect_left(times, float(at[0])) > 2:
+            return None
+        width = stencil if self.method is None else max(stencil, self.method.window)
+        last = min(end, bisect.bisect_left(times, float(at[-1])) + stencil // 2)
+        start = max(first, last - width)
+        return start, min(end, start + width), False
 
     @staticmethod
     def _held(tr: Track, col: int, at: np.ndarray, hi: float) -> np.ndarray:
