@@ -45,8 +45,8 @@ def _effective_order(ctx: StepContext) -> int:
 
 
 def _predictor_order(q: int) -> int | None:
-    """The extrapolation order of ``pc``'s predictor when the history supports order ``q``
-    (the corrector interpolates at ``q + 1``).
+    """The extrapolation order of the predictor of ``pc`` and ``corrector`` when the history
+    supports order ``q`` (the corrector interpolates at ``q + 1``).
 
     At a segment's second step the history (two points) is shorter than the master's order
     (2), and the master's default would interpolate the outputs a Gauss–Seidel receiver reads
@@ -249,7 +249,7 @@ class Corrector(_PolicyController):
     def attempt(self, ctx: StepContext, t: float, h: float) -> Attempt:
         q = _effective_order(ctx)
         token = ctx.save()
-        y = ctx.step(t, h)
+        y = ctx.step(t, h, order=_predictor_order(q))
         ctx.restore(token)
         y_corrected = _correct(ctx, t, h, y, q)
         return self._decide(ctx, token, t, h, y_corrected, y_corrected - y, y_corrected, q + 1,
