@@ -292,9 +292,22 @@ def _master_run(build: Callable[[], tuple[System, float]], master: str, controll
     return run
 
 
-def overhead_rows(repeats: int = 3) -> list[str]:
+def _round_ratio(runs: list[tuple[float, float, int]],
+                 hand: list[tuple[float, float, int]]) -> float:
+    """The median over the rounds of one round's overhead per call against the loop by
+    hand's in the same round (each run: wall, time inside the sub-models, calls)."""
+    return statistics.median([(w - i) / c / ((hw - hi) / hc)
+                              for (w, i, c), (hw, hi, hc) in zip(runs, hand, strict=True)])
+
+
+def overhead_rows(repeats: int = 7) -> list[str]:
     """Target 1 on both systems, and on the FMUs the hand-written loop (:class:`_HandWritten`)
-    and the master's ``corrector``, which runs the same algorithm, beside them; interleaved."""
+    and the master's ``corrector``, which runs the same algorithm, beside them; interleaved.
+
+    The ratio to the loop by hand is the median of each round's own ratio: the runs of one
+    round are seconds apart, so a machine whose pace drifts over the minute moves both sides
+    of a round's ratio alike (a ratio of the two medians moved by 1.2-1.8 x between two runs
+    of the table minutes apart)."""
     bar1, bar2 = build_fmu("pendulum_bar1"), build_fmu("pendulum_bar2")
 
     def fmus() -> tuple[System, float]:
@@ -324,10 +337,10 @@ def overhead_rows(repeats: int = 3) -> list[str]:
             runs[key].append(run())
     per_call = {k: statistics.median([(w - i) / c for w, i, c in v]) * 1e6
                 for k, v in runs.items()}
-    floor = per_call[(fmu, "by hand: predictor–corrector")]
+    hand = runs[(fmu, "by hand: predictor–corrector")]
     rows = []
     for (label, name), us in per_call.items():
-        ratio = f"{us / floor:.2f}" if label == fmu else "—"
+        ratio = f"{_round_ratio(runs[(label, name)], hand):.2f}" if label == fmu else "—"
         verdict = "(the floor)" if name.startswith("by hand") else _verdict(us, 20.0)
         rows.append(f"| {label} | {name} | {runs[(label, name)][-1][2]} | {us:.1f} µs | "
                     f"{ratio} | {verdict} |")
@@ -474,7 +487,8 @@ def overhead_lines(rows: list[str], pace: float) -> list[str]:
         "",
         f"Measured {date.today()}, the bare ring loop (part 2) taking {pace * 1e6:.2f} µs per "
         "model-step at N = 10 in the same run. "
-        "(wall − time inside the sub-models) / calls, tol 1e-4, no store; interleaved runs. "
+        "(wall − time inside the sub-models) / calls, tol 1e-4, no store; the median of 7 "
+        "interleaved rounds; × by hand: the median of each round's own ratio. "
         "*By hand*: the adaptive loop a user could write in Python on the same FMU adapters, "
         "Gauss–Seidel at order 2, predictor and corrector on every attempt, their difference "
         "against a share of tol, the elementary step rule, and nothing else the master does "
