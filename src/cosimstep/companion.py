@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from cosimstep.controllers.coupling import _predictor_order
+from cosimstep.controllers.coupling import _effective_order, _predictor_order
 from cosimstep.errors import SubModelError
 from cosimstep.loops import LoopContext
 from cosimstep.masters import Master
@@ -164,7 +164,7 @@ class Companion:
         ctx = self.ctx
         if self.pairing == 1:
             return ctx.step(t, h)
-        q = min(ctx.order, len(ctx.times) - 1)
+        q = _effective_order(ctx)
         token = self.master.save()
         y_p = ctx.step(t, h, order=_predictor_order(q))
         self.master.restore(token)

@@ -306,9 +306,8 @@ class Multirate:
         t0 = float(at[0])
         lo, hi = self._segment_bounds(t0 + 1e-12 * max(1.0, abs(t0)), owner)
         out = np.empty((len(at), len(cols)))
-        discrete = self.changing.get(tr.index) if not tr.discrete else None
-        held = [c for c, col in enumerate(cols) if tr.discrete or (
-            discrete is not None and col in discrete)]
+        changing = self.changing.get(tr.index, ())
+        held = [c for c, col in enumerate(cols) if tr.discrete or col in changing]
         for c in held:
             out[:, c] = self._held(tr, cols[c], at, hi)
         rest = [c for c in range(len(cols)) if c not in held]
@@ -335,6 +334,8 @@ class Multirate:
         out = np.empty((len(at), len(cols)))
         pts = tr.times[start:last]
         block = np.array(tr.rows[start:last])
+        # each column is copied out contiguous, as one output read alone was built: the same
+        # products, so the same floats
         if self.method is not None and not beyond and len(pts) > 1:
             hermite = self.method.name == "hermite"
             slopes = np.array(tr.slopes[start:last]) if tr.slopes and hermite else None
