@@ -103,8 +103,8 @@ def _pump(master: str, tol: float, example_control: bool = False, seed: int | No
 
 
 def pump_row(args: tuple[str, str, float]) -> str:
-    """``control``: "example" = the example's ``[controller]`` options at ``tol``; "PI" = the
-    default step control."""
+    """``control``: "example" = the example's ``[controller]`` options at ``tol``; "default" =
+    the default step control."""
     master, control, tol = args
     result = _pump(master, tol, example_control=control == "example")
     err = result.error.max_scaled
@@ -116,7 +116,7 @@ def pump_row(args: tuple[str, str, float]) -> str:
 SEEDS = range(1, 20)  # failure times other than the example's (seed 11 is the example)
 SEED_TOLS = (1e-3, 1e-4, 1e-5, 1e-6)
 SEED_MASTERS = ("gauss-seidel", "multirate")
-CONTROLS = ("PI", "example")
+CONTROLS = ("default", "example")
 
 SeedRun = tuple[str, str, int, float, float, float, int]
 
@@ -201,8 +201,10 @@ def main() -> None:
         "the same instant as in the reference. Step control: *example* = the example's "
         "`[controller]` (`trend` and `unbiased`, acting only where the error memory probes "
         "saw the system settle: a forecast of the error coefficient in time, followed where "
-        "the estimates show a drift, and the aim corrected for their scatter), *PI* = the "
-        "default.",
+        "the estimates show a drift, and the aim corrected for their scatter), *default* = "
+        "the default: the PI control, which catches up with the settling where the probes saw "
+        "it (`StepPolicy.catch_up`; before it, the PI control alone delivered 0.017–0.35 × "
+        "tol under Gauss–Seidel).",
         "",
         "| master | step control | tol | status | failure at [s] | calls | error | err/tol |",
         "|---|---|---|---|---|---|---|---|",
