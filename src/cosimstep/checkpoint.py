@@ -31,8 +31,9 @@ if TYPE_CHECKING:
 
     Loop = FixedLoop | ControllerLoop
 
-VERSION = 3  # 2: the controllers' run estimate (controllers/drift.py) in the pickle;
-# 3: StepPolicy.overrun (an older policy would resume with the gate open by default)
+VERSION = 4  # 2: the controllers' run estimate (controllers/drift.py) in the pickle;
+# 3: StepPolicy.overrun (an older policy would resume with the gate open by default);
+# 4: StepPolicy.catch_up (an older policy would resume catching up, unlike its first part)
 
 
 class Checkpoints:

@@ -139,7 +139,7 @@ def test_catching_up_is_off_under_the_options_for_growing_errors() -> None:
     policy.memory = 1.0
     assert policy._catching_up(0.01, 0.1) and not policy._catching_up(0.2, 0.1)
     for options in ({"overrun": True}, {"feedback": True}, {"trend": True},
-                    {"predictive": True}, {"catch_up": False}):
+                    {"predictive": True}, {"unbiased": True}, {"catch_up": False}):
         other = StepPolicy(tol=1e-4, **options)
         other.start(0.0, 10.0)
         other.memory = 1.0

@@ -211,10 +211,10 @@ class StepPolicy:
         at an event the step starts again from the run's first step (the controllers'
         ``event``). The error per step of a system that settles (a transient decaying, a pump
         run down) falls by a steady factor per step *besides* what the step does; the PI
-        control treats that drift as a disturbance and settles below the target (at 0.51 of
-        it for a fall of 18 % per step; measured on the pump-failure example: ratios of
-        0.03–0.05 against 0.1 for the whole settle, so ``pc`` spent 6–11 % of its
-        tolerance). A forecast with a trend follows a steady drift without offset. It starts
+        control alone (``catch_up`` off) treats that drift as a disturbance and settles below
+        the target (at 0.51 of it for a fall of 18 % per step; measured on the pump-failure
+        example: ratios of 0.03–0.05 against 0.1 for the whole settle, so ``pc`` spent 6–11 %
+        of its tolerance). A forecast with a trend follows a steady drift without offset. It starts
         again, as after a rejection, when the error memory is measured anew (a new share of
         the budget; see :attr:`trend`). Off by default (docs/concepts.md, "Step control that
         follows a settling system").
@@ -259,25 +259,24 @@ class StepPolicy:
         Proportional–integral control (Gustafsson, the default): damps the step oscillation an
         I-controller shows on smooth problems.
     catch_up:
-        Where the error memory probes measured the system settling (:meth:`_settling`) and an
-        accepted step's ratio is below the aim, the step grows at least to the elementary
-        controller's step towards the aim, ``(target/r)^(1/k)``, when that is longer than the
-        PI control's. A settling system's error coefficient ``log c`` falls by some ``a`` per
-        step besides what the step does; the PI control, whose integral part alone answers a
-        steady offset, then settles at ``r = target·e^(−a/0.3)``, the elementary step at
-        ``target·e^(−a)``: one step behind the fall instead of its lag (with ``c`` falling 20 %
-        per step, half the aim against 0.8 of it). Above the aim the PI control is kept, as
-        it is where the probes saw no settling: there the fall is a swing that the motion
-        takes back, and spending below-aim ratios in full on every swing (tried everywhere)
-        made the steps rough and left the pendulums' errors 2-3.5 × higher at 0.96 × the
-        calls, past what their summed estimates see. Measured on the suite and the holdout in
-        docs/concepts.md, "Catching up with a settling system". Off with ``trend`` or
-        ``predictive``, the opt-in answers to the same lag, and with ``feedback`` or
-        ``overrun``, the options for errors that grow beyond their sum: there the probes are
-        the ones to doubt (a relaxation oscillator's memory is misread as short; with
-        ``overrun`` Van der Pol at 1e-4 went 6.9 → 23 × tol, and 11.8 × with catching up
-        stopped only once the estimate passed ``tol``). The multi-rate master does not use it
-        (:func:`cosimstep.multirate._copy_policy`).
+        With ``pi``, where the error memory probes measured the system settling
+        (:meth:`_settling`, so only under ``pc``, the controller that probes) and an accepted
+        step's ratio is below the aim, the step grows at least to the elementary controller's
+        step towards the aim, ``(aim/r)^(1/k)``, when that is longer than the PI control's. A
+        settling system's error coefficient ``log c`` falls by some ``a`` per step besides what
+        the step does; the PI control, whose integral part alone answers a steady offset, then
+        settles at ``r = aim·e^(−a/0.3)`` and leaves most of the budget unspent, the elementary
+        step at ``aim·e^(−a)``, one step behind the fall. Above the aim the PI control is kept:
+        a rejection is near there, and its damping is what holds the ratio. Where the probes
+        saw no settling it is kept too: a fall of ``c`` there is a swing the motion takes
+        back, and a step that jumps on every low ratio but is damped on every high one
+        roughens the step sequence and spends more than the aim, past what the summed
+        estimates see. Off with ``trend``, ``predictive`` or ``unbiased`` (the opt-in answers
+        to the same lag and its scatter, measured on their own), and with ``feedback`` or
+        ``overrun`` (for errors that grow beyond their sum, where the probes are the ones to
+        doubt: they misread a relaxation oscillator's memory as short). The multi-rate master
+        does not use it (:func:`cosimstep.multirate._copy_policy`). Measured in
+        docs/concepts.md, "Catching up with a settling system".
     target:
         The error ratio the PI control settles at. The local estimates scatter from step to
         step, and a rejected step costs its calls again, so the control aims well below the
@@ -499,7 +498,8 @@ class StepPolicy:
         """Whether an accepted step's ratio ``r`` lets the step catch up with a settling
         system (:attr:`catch_up`)."""
         return self.catch_up and r < aim and self._settling() \
-            and not (self.overrun or self.feedback or self.trend or self.predictive)
+            and not (self.overrun or self.feedback or self.trend or self.predictive
+                     or self.unbiased)
 
     def _forecast_step(self, h: float, r: float, k: float, aim: float) -> float:
         """The step whose forecast error ratio is ``aim`` (:attr:`predictive`, :attr:`trend`).
