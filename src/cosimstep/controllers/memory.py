@@ -14,7 +14,10 @@ an accepted step, the coupled system is run on for :attr:`ErrorMemory.steps` ste
 current length twice — from the kept (corrector) state and from the predictor's end state,
 which differs from it by about one local error, the right kind of perturbation — both with the
 same scheme (extrapolated inputs from their own histories), then the run goes on from the kept
-state. ``φ`` is their scaled difference; ``M`` is its integral over the probe plus a tail.
+state. ``φ_j`` is their scaled difference in output ``j``, relative to the largest first
+difference; ``M`` is the largest over the outputs of ``∫ φ_j`` over the probe plus a tail: each
+output holds its own part of every local error for as long as its ``φ_j`` says (an output that
+integrates another's keeps what it took while that one's part fades).
 
 The tail is where a wrong answer would break the tolerance, so decay is extrapolated only when
 the probe shows the *shape* of decay, and then only at the slowest rate seen. A perturbation
@@ -169,11 +172,30 @@ class ErrorMemory:
             restore(kept[0])
             return
         restore(kept[0])
-        d = np.max(np.abs(paths[1] - paths[0]) / scale, axis=1)
-        if not (d[0] > 0 and np.isfinite(d).all()):
+        parts = np.abs(paths[1] - paths[0]) / scale  # rows: the probe's times; columns: outputs
+        first = float(parts[0].max())
+        if not (first > 0 and np.isfinite(parts).all()):
             return
-        self.measured.append((t, _memory(times - t, d / d[0], self._span), times[-1] - t))
+        self.measured.append((t, _longest(times - t, parts / first, self._span), times[-1] - t))
         self.made += 1
+
+
+def _longest(s: np.ndarray, parts: np.ndarray, span: float) -> float:
+    """The memory of the output that keeps its part of a perturbation longest: the largest
+    :func:`_memory` over the columns of ``parts`` (each output's difference over the probe,
+    relative to the largest first difference of all), outputs the probe never moved left out.
+
+    Why each output on its own: output ``j``'s global error is the sum of the local errors,
+    each weighted by the part ``φ_j`` of it that ``j`` still holds later, so the budget must
+    hold for the output with the largest ``∫φ_j``. The difference's norm alone (its largest
+    output at each time) has the tail of whatever part was largest at first: a fast part that
+    fades hides an output that integrates it and keeps what it took (a PI controller's
+    integral, a product's amount, a residual that only integrates): the norm's tail said 0.08 s
+    where that output keeps its part for the rest of the run (docs/concepts.md, "Integrating
+    outputs: each output's memory").
+    """
+    return max(_memory(s, parts[:, j], span) for j in range(parts.shape[1])
+               if parts[:, j].any())
 
 
 def _memory(s: np.ndarray, phi: np.ndarray, span: float) -> float:
