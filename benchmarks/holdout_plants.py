@@ -1,18 +1,20 @@
-"""Five engineering plants for the holdout (``benchmarks/holdout.py``), added unseen.
+"""Five engineering plants for the holdout (``benchmarks/holdout.py``).
 
-Built for an out-of-sample check of the error control (2026-11-29): none was in the suite or
-the holdout, and nothing in ``cosimstep`` was chosen by looking at them before they were run.
+Built as an out-of-sample check of the error control: none was in the suite or the holdout,
+and they were run before anything was changed by what they showed. Two of them hold a state
+that integrates another's and so keeps its part of every error for the rest of the run (the PI
+controller's integral, the enzyme's product); the error memory, read then from the norm of the
+probe's difference, missed it, and each output's memory was argued on them (docs/concepts.md,
+"Integrating outputs: each output's memory"), so for that change they are no longer unseen.
 Each is split into two or three sub-models the way a user coupling tools would split it
 (``OdeSubModel`` with fixed-step RK4 inside, so that what is measured is the coupling's error),
-with a monolithic ``OdeSubModel`` as the reference. Two of them hold a state that integrates
-another's and so never forgets an error (the PI controller's integral, the enzyme's product):
-the class the error memory probes cannot see in six steps (docs/concepts.md, "Integrating
-outputs: what six steps cannot tell").
+with a monolithic ``OdeSubModel`` as the reference.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -22,8 +24,11 @@ from cosimstep.reference import Reference
 from cosimstep.suite.base import connect_both_ways, ports
 
 
-def _ode(rhs, states, inputs, events=(), max_dt=1e-3) -> OdeSubModel:
-    """A sub-model as the suite/holdout build them: fixed-step RK4 inside."""
+def _ode(rhs: Callable, states: dict[str, tuple[str, float]],
+         inputs: dict[str, tuple[str, float]], events: tuple[float, ...] = (),
+         max_dt: float = 1e-3) -> OdeSubModel:
+    """A sub-model as the suite and the holdout build them: fixed-step RK4 inside, so that
+    what is measured is the coupling's error, not the internal solver's."""
     return OdeSubModel(rhs, ports(states), inputs=ports(inputs), solver=RK4(max_dt=max_dt),
                        time_events=events)
 
@@ -141,10 +146,10 @@ def shear_building() -> tuple[System, Reference]:
 # of a cooling jacket (jacket energy balance as in B. W. Bequette, "Process Dynamics:
 # Modeling, Analysis, and Simulation", Prentice Hall 1998, section 13; our jacket volume
 # 10 L of water, flow 60 L/min, inlet 290 K). Start at Seborg's nominal operating point
-# (0.5 mol/L, 350 K, coolant 300 K), which with the jacket's own dynamics is an unstable
-# steady state (the jacket is 0.25 K/min off balance there): the reactor drifts off it over
-# ~2 min and settles on its cold, low-conversion steady state (317 K); 10 min. (A start filled
-# with feed ran away to 540 K, too stiff for the RK4 inside, so it was not used.)
+# (0.5 mol/L, 350 K, coolant 300 K), the reactor's steady state with the coolant held, but
+# not the coupled system's (the jacket is 0.25 K/min off balance there): the reactor drifts
+# off it over ~2 min and settles on its cold, low-conversion steady state (317 K); 10 min. (A
+# start filled with feed ran away to 540 K, too stiff for the RK4 inside, so it was not used.)
 # --------------------------------------------------------------------------------------------
 CSTR = dict(q=100.0, V=100.0, rhoCp=1000.0 * 0.239, dH=5e4, ER=8750.0, k0=7.2e10, UA=5e4,
             caf=1.0, Tf=350.0, Vj=10.0, qj=60.0, rhoCpj=4184.0, Tjin=290.0)

@@ -31,9 +31,11 @@ if TYPE_CHECKING:
 
     Loop = FixedLoop | ControllerLoop
 
-VERSION = 4  # 2: the controllers' run estimate (controllers/drift.py) in the pickle;
+VERSION = 5  # 2: the controllers' run estimate (controllers/drift.py) in the pickle;
 # 3: StepPolicy.overrun (an older policy would resume with the gate open by default);
-# 4: StepPolicy.catch_up (an older policy would resume catching up, unlike its first part)
+# 4: StepPolicy.catch_up (an older policy would resume catching up, unlike its first part);
+# 5: ErrorMemory.measured holds each output's memory (an older one, read from the norm of the
+# difference, would steer the resumed run until three new probes replaced it)
 
 
 class Checkpoints:

@@ -17,7 +17,8 @@ from the state after a first step with extrapolated inputs (predictor) and from 
 the same step with inputs interpolated through the predictor's end values (corrector), as
 ``pc``'s probe starts. The two differ by about a coupling error, in the direction coupling
 errors take; the decay of their scaled difference is the memory (read as in
-:func:`cosimstep.controllers.memory._memory`: decay only where it has the shape of decay).
+:func:`cosimstep.controllers.memory._longest`: each output's own, decay only where it has the
+shape of decay, the longest counts).
 Afterwards every sub-model is restored to the state it had before the probe, so the race goes
 on exactly where it was: the probe changes the steps only through the memory it measures.
 

@@ -41,10 +41,10 @@ def test_an_output_that_keeps_its_part_sets_the_memory() -> None:
     norm_alone = _memory(STEPS, parts.max(axis=1), span)
     assert norm_alone == pytest.approx(0.5, rel=0.05)
     assert _longest(STEPS, parts, span) == pytest.approx(0.3 * span, rel=1e-9)
-    # where every part fades, the slowest-fading output decides
+    # where every part fades, the slowest-fading output decides: 0.3 / 0.5 (1 − e^-5), not the
+    # larger part's 0.5 (1 − e^-20)
     fading = np.column_stack([np.exp(-2.0 * STEPS), 0.3 * np.exp(-0.5 * STEPS)])
-    assert _longest(STEPS, fading, span) == pytest.approx(
-        max(_memory(STEPS, fading[:, 0], span), _memory(STEPS, fading[:, 1], span)))
+    assert _longest(STEPS, fading, span) == pytest.approx(0.6 * -math.expm1(-5.0), rel=1e-3)
 
 
 @pytest.mark.parametrize("phase", [0.0, 0.4, 0.8, 1.2])
@@ -135,25 +135,26 @@ def _run(name: str, tol: float, **options) -> cs.SimulationResult:
 
 
 # measured err/tol with the probe (without): two_mass_damped tol 1e-4 with predictive control
-# 0.115 (0.060; 0.23 while the memory was read from the difference's norm alone: each output's
-# memory holds the parts the oscillation does not show fading over six steps, docs/concepts.md
-# "Integrating outputs: each output's memory"), hence 1.5 x below — with the default PI
-# control 0.062 (0.027): the PI lags the settling error (docs/concepts.md, "Step control that
-# follows a settling system"); tol 1e-6 0.17 (0.65 with the norm's memory);
+# 0.115 (0.060): each output's memory holds the parts the oscillation does not show fading over
+# six steps (docs/concepts.md, "Integrating outputs: each output's memory"; with the memory read
+# from the difference's norm alone the run was repeated, 0.67), hence 1.5 x there — with the
+# default PI control 0.062 (0.027): the PI lags the settling error (docs/concepts.md, "Step
+# control that follows a settling system"); tol 1e-6 0.17 (0.042; 4.27 with the norm's memory);
 # kpr_separated tol 1e-4 0.23, since the step catches up with the settling (StepPolicy.catch_up)
 # 0.21, its summed estimate 5.03 x the error (4.0 before): the KPR problems' estimates overstate
 # more once the control spends closer to its aim (docs/concepts.md, "Catching up with a settling
 # system"), hence 5.5 here, past the issue's 5
-@pytest.mark.parametrize("name,tol,options", [("two_mass_damped", 1e-4, {"predictive": True}),
-                                              ("two_mass_damped", 1e-6, {}),
-                                              ("kpr_separated", 1e-4, {})])
-def test_pc_spends_the_tolerance_on_a_system_that_forgets(name, tol, options) -> None:
+@pytest.mark.parametrize("name,tol,options,moved", [
+    ("two_mass_damped", 1e-4, {"predictive": True}, 1.5),
+    ("two_mass_damped", 1e-6, {}, 3.0),
+    ("kpr_separated", 1e-4, {}, 3.0)])
+def test_pc_spends_the_tolerance_on_a_system_that_forgets(name, tol, options, moved) -> None:
     with_probe = _run(name, tol, **options)
     without = _run(name, tol, probe_every=0, **options)
     assert with_probe.success and without.success
     err, err_without = with_probe.error.max_scaled, without.error.max_scaled
     assert 0.1 <= err / tol <= 10.0, err / tol
-    assert err > 1.5 * err_without  # the probe is what moved it
+    assert err > moved * err_without  # the probe is what moved it
     assert 0.2 <= with_probe.error_estimate / err <= 5.5, with_probe.error_estimate / err
 
 
@@ -219,16 +220,17 @@ def test_the_pump_s_long_steps_keep_the_tolerance() -> None:
 
 
 def test_a_pi_controller_s_integral_keeps_its_part_of_every_error() -> None:
-    """The DC motor under PI control of ``benchmarks/holdout_plants.py`` (a plant added unseen
-    to the holdout), tol 1e-5, one run: 18.4 x tol while the memory was read from the
-    difference's norm, which the fading current dominated (0.08 s; its estimate 0.11 x the
-    error), 0.72 x with each output's memory (its estimate 2.8 x the error); without any
-    memory 0.60 x. The integral keeps what it takes for the rest of the run."""
+    """The DC motor under PI control of ``benchmarks/holdout_plants.py``, tol 1e-5, one run
+    (no repeat, unlike the holdout's table, whose cell is the repeat the estimate asks for):
+    18.4 x tol while the memory was read from the difference's norm, which the fading current
+    dominated (0.08 s; its estimate 0.11 x the error), 0.72 x with each output's memory (its
+    estimate 2.8 x the error); without any memory 0.60 x. The integral keeps what it takes
+    for the rest of the run."""
     import sys
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-    plants = pytest.importorskip("holdout_plants")
+    import holdout_plants as plants
     tol = 1e-5
     system, reference = plants.dc_motor()
     result = cs.simulate(system, 3.0, cs.make_controller("pc", None, tol),

@@ -4,10 +4,11 @@ A controller that holds the sum of its local errors to the tolerance assumes eve
 carried to the end of the run. Where the coupled system forgets (damping, a stable fast
 partition, a slow part relaxing to its forcing), an error made at ``t`` has faded a while
 later, so the global error is about the local error rate times the *memory*
-``M = ∫₀^T φ(s) ds`` — ``φ(s)`` the size of a perturbation ``s`` after it was made, relative to
-its first size — not times the run's length ``T``: the controller then delivers about ``M/T``
-of what was asked (measured 1–5 % on damped and KPR-type problems). Knowing ``M``, each step
-may spend its share of the tolerance over ``M`` instead of ``T``.
+``M = ∫₀^T φ(s) ds`` — ``φ(s)`` what an output still holds of a perturbation ``s`` after it
+was made, relative to the perturbation's first size — not times the run's length ``T``: the
+controller then delivers about ``M/T`` of what was asked (measured 1–5 % on damped and KPR-type
+problems). Knowing ``M``, each step may spend its share of the tolerance over ``M`` instead of
+``T``.
 
 ``M`` of a black-box system is measured, not guessed, by a *probe*: now and then, right after
 an accepted step, the coupled system is run on for :attr:`ErrorMemory.steps` steps of the
@@ -23,6 +24,8 @@ The tail is where a wrong answer would break the tolerance, so decay is extrapol
 the probe shows the *shape* of decay, and then only at the slowest rate seen. A perturbation
 that fades is a mixture of decaying modes, and a positive sum of decaying exponentials is
 log-convex: ``log φ`` in the middle of the probe lies on or below the chord between its ends.
+(One output's part may mix modes of both signs, which need not be log-convex: it is then held,
+the safe side.)
 A perturbation rotating through an oscillation (between a position and a velocity of different
 scales) dips like a cosine, which is log-concave, above the chord. Only rounding is allowed for
 (:data:`CONVEXITY_SLACK`); a concave probe holds ``φ`` at its last value (no decay assumed) —
@@ -190,9 +193,12 @@ def _longest(s: np.ndarray, parts: np.ndarray, span: float) -> float:
     hold for the output with the largest ``∫φ_j``. The difference's norm alone (its largest
     output at each time) has the tail of whatever part was largest at first: a fast part that
     fades hides an output that integrates it and keeps what it took (a PI controller's
-    integral, a product's amount, a residual that only integrates): the norm's tail said 0.08 s
-    where that output keeps its part for the rest of the run (docs/concepts.md, "Integrating
-    outputs: each output's memory").
+    integral, a product's amount, a residual that only integrates): on a PI-controlled DC
+    motor the norm's tail said 0.08 s where the integral keeps its part for the rest of the
+    run (docs/concepts.md, "Integrating outputs: each output's memory").
+
+    ``parts`` must hold a positive, finite entry in its first row (:meth:`ErrorMemory.probe`
+    checks it): there is then at least one output to take the largest over.
     """
     return max(_memory(s, parts[:, j], span) for j in range(parts.shape[1])
                if parts[:, j].any())
