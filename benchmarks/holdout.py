@@ -49,12 +49,12 @@ import numpy as np
 from _cli import add_shared, option
 from _doc import write_section
 from cosimstep import MasterOptions, System, make_controller, simulate
-from cosimstep.adapters.ode import RK4, OdeSubModel
+from cosimstep.adapters.ode import OdeSubModel
 from cosimstep.reference import Reference
 from cosimstep.suite.base import connect_both_ways, ports, scalar_pair
 from cosimstep.suite.cycles import brusselator, van_der_pol
 from cosimstep.suite.mechanical import two_mass
-from holdout_plants import bus_suspension, cstr, dc_motor, enzyme, shear_building
+from holdout_plants import bus_suspension, cstr, dc_motor, enzyme, ode_model, shear_building
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "holdout.json"
@@ -63,15 +63,6 @@ MARK_END = "<!-- holdout: end -->"
 TOLS = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6)
 MASTERS = ("pc", "multirate")
 MAX_WALL = 300.0  # seconds per cell (both runs of a repeated pair): past it, timed out
-Rhs = Callable[[float, np.ndarray, np.ndarray, object], np.ndarray]
-
-
-def _ode(rhs: Rhs, states: dict[str, tuple[str, float]], inputs: dict[str, tuple[str, float]],
-         events: tuple[float, ...] = ()) -> OdeSubModel:
-    """A sub-model as the suite builds them: fixed-step RK4 inside, so that what is measured
-    is the coupling's error, not the internal solver's."""
-    return OdeSubModel(rhs, ports(states), inputs=ports(inputs), solver=RK4(max_dt=1e-3),
-                       time_events=events)
 
 
 def lotka_volterra() -> tuple[System, Reference]:
@@ -128,8 +119,8 @@ def forced_loop() -> tuple[System, Reference]:
         return np.array([x[1], -25.0 * x[0] - 0.4 * x[1] + math.sin(7.0 * t) + 2.0 * x[2],
                          (x[0] - x[2]) / 0.2])
 
-    a = _ode(oscillator, {"x": ("1", 0.1), "v": ("1", 0.0)}, {"z": ("1", 0.0)})
-    b = _ode(lag, {"z": ("1", 0.0)}, {"x": ("1", 0.1)})
+    a = ode_model(oscillator, {"x": ("1", 0.1), "v": ("1", 0.0)}, {"z": ("1", 0.0)})
+    b = ode_model(lag, {"z": ("1", 0.0)}, {"x": ("1", 0.1)})
     system = connect_both_ways(System().add("a", a).add("b", b), "a", "b", {"x": "x"},
                                {"z": "z"})
     mono = OdeSubModel(whole, ports({"x": ("1", 0.1), "v": ("1", 0.0), "z": ("1", 0.0)}))
@@ -176,8 +167,8 @@ def rossler() -> tuple[System, Reference]:
     def whole(t: float, s: np.ndarray, u: np.ndarray, _: object) -> np.ndarray:
         return np.array([-s[1] - s[2], s[0] + a * s[1], b + s[2] * (s[0] - c)])
 
-    xy = _ode(plane, {"x": ("1", 1.0), "y": ("1", 0.0)}, {"z": ("1", 0.0)})
-    z = _ode(fold, {"z": ("1", 0.0)}, {"x": ("1", 1.0)})
+    xy = ode_model(plane, {"x": ("1", 1.0), "y": ("1", 0.0)}, {"z": ("1", 0.0)})
+    z = ode_model(fold, {"z": ("1", 0.0)}, {"x": ("1", 1.0)})
     system = connect_both_ways(System().add("a", xy).add("b", z), "a", "b", {"x": "x"},
                                {"z": "z"})
     mono = OdeSubModel(whole, ports({"x": ("1", 1.0), "y": ("1", 0.0), "z": ("1", 0.0)}))

@@ -24,11 +24,12 @@ from cosimstep.reference import Reference
 from cosimstep.suite.base import connect_both_ways, ports
 
 
-def _ode(rhs: Callable, states: dict[str, tuple[str, float]],
+def ode_model(rhs: Callable, states: dict[str, tuple[str, float]],
          inputs: dict[str, tuple[str, float]], events: tuple[float, ...] = (),
          max_dt: float = 1e-3) -> OdeSubModel:
-    """A sub-model as the suite and the holdout build them: fixed-step RK4 inside, so that
-    what is measured is the coupling's error, not the internal solver's."""
+    """A sub-model as the suite and the holdout build them (``benchmarks/holdout.py`` uses it
+    too): fixed-step RK4 inside, so that what is measured is the coupling's error, not the
+    internal solver's."""
     return OdeSubModel(rhs, ports(states), inputs=ports(inputs), solver=RK4(max_dt=max_dt),
                        time_events=events)
 
@@ -71,9 +72,10 @@ def dc_motor() -> tuple[System, Reference]:
 
     ev = (p["t_step"],)
     system = System()
-    system.add("elec", _ode(electrical, {"i": ("A", 0.0)}, {"V": ("V", 0.0), "w": ("rad/s", 0.0)}))
-    system.add("mech", _ode(mechanical, {"w": ("rad/s", 0.0)}, {"i": ("A", 0.0)}))
-    system.add("ctrl", _ode(controller, {"I": ("rad", 0.0), "V": ("V", 0.0)},
+    system.add("elec", ode_model(electrical, {"i": ("A", 0.0)},
+                                 {"V": ("V", 0.0), "w": ("rad/s", 0.0)}))
+    system.add("mech", ode_model(mechanical, {"w": ("rad/s", 0.0)}, {"i": ("A", 0.0)}))
+    system.add("ctrl", ode_model(controller, {"I": ("rad", 0.0), "V": ("V", 0.0)},
                             {"w": ("rad/s", 0.0)}, events=ev))
     system.connect("ctrl.V", "elec.V")
     system.connect("mech.w", "elec.w")
@@ -127,8 +129,8 @@ def shear_building() -> tuple[System, Reference]:
     s_low = {"x1": ("cm", x1), "v1": ("cm/s", 0.0), "x2": ("cm", x2), "v2": ("cm/s", 0.0)}
     s_up = {"d3": ("cm", d3), "v3": ("cm/s", 0.0), "d4": ("cm", d4), "v4": ("cm/s", 0.0)}
     system = System()
-    system.add("lower", _ode(lower, s_low, {"d3": ("cm", d3), "v3": ("cm/s", 0.0)}))
-    system.add("upper", _ode(upper, s_up, {"v2": ("cm/s", 0.0)}))
+    system.add("lower", ode_model(lower, s_low, {"d3": ("cm", d3), "v3": ("cm/s", 0.0)}))
+    system.add("upper", ode_model(upper, s_up, {"v2": ("cm/s", 0.0)}))
     system.connect("lower.v2", "upper.v2")
     system.connect("upper.d3", "lower.d3")
     system.connect("upper.v3", "lower.v3")
@@ -180,9 +182,9 @@ def cstr() -> tuple[System, Reference]:
 
     ca0, T0, Tj0 = CSTR_X0
     system = System()
-    system.add("reactor", _ode(reactor, {"ca": ("mol/L", ca0), "T": ("K", T0)},
+    system.add("reactor", ode_model(reactor, {"ca": ("mol/L", ca0), "T": ("K", T0)},
                                {"Tj": ("K", Tj0)}))
-    system.add("jacket", _ode(jacket, {"Tj": ("K", Tj0)}, {"T": ("K", T0)}))
+    system.add("jacket", ode_model(jacket, {"Tj": ("K", Tj0)}, {"T": ("K", T0)}))
     connect_both_ways(system, "reactor", "jacket", {"T": "T"}, {"Tj": "Tj"})
     mono = OdeSubModel(whole, ports({"ca": ("mol/L", ca0), "T": ("K", T0), "Tj": ("K", Tj0)}))
     return system, Reference(mono, {"reactor.ca": "ca", "reactor.T": "T", "jacket.Tj": "Tj"})
@@ -218,9 +220,9 @@ def enzyme() -> tuple[System, Reference]:
         return np.array([-binding(S, C), p["k2"] * C, binding(S, C) - p["k2"] * C])
 
     system = System()
-    system.add("slow", _ode(slow, {"S": ("mol/L", p["S0"]), "P": ("mol/L", 0.0)},
+    system.add("slow", ode_model(slow, {"S": ("mol/L", p["S0"]), "P": ("mol/L", 0.0)},
                             {"C": ("mol/L", 0.0)}))
-    system.add("fast", _ode(fast, {"C": ("mol/L", 0.0)}, {"S": ("mol/L", p["S0"])},
+    system.add("fast", ode_model(fast, {"C": ("mol/L", 0.0)}, {"S": ("mol/L", p["S0"])},
                             max_dt=2e-4))
     connect_both_ways(system, "slow", "fast", {"S": "S"}, {"C": "C"})
     mono = OdeSubModel(whole, ports({"S": ("mol/L", p["S0"]), "P": ("mol/L", 0.0),
@@ -270,8 +272,8 @@ def bus_suspension() -> tuple[System, Reference]:
 
     rest = {"x": ("mm", 0.0), "v": ("mm/s", 0.0)}
     system = System()
-    system.add("body", _ode(body, rest, {"xw": ("mm", 0.0), "vw": ("mm/s", 0.0)}))
-    system.add("wheel", _ode(wheel, rest, {"xb": ("mm", 0.0), "vb": ("mm/s", 0.0)}))
+    system.add("body", ode_model(body, rest, {"xw": ("mm", 0.0), "vw": ("mm/s", 0.0)}))
+    system.add("wheel", ode_model(wheel, rest, {"xb": ("mm", 0.0), "vb": ("mm/s", 0.0)}))
     connect_both_ways(system, "body", "wheel", {"x": "xb", "v": "vb"}, {"x": "xw", "v": "vw"})
     mono = OdeSubModel(whole, ports({"x1": ("mm", 0.0), "v1": ("mm/s", 0.0), "x2": ("mm", 0.0),
                                      "v2": ("mm/s", 0.0)}))
