@@ -332,7 +332,7 @@ class PredictorCorrector(_PolicyController):
     def _input_ratio(self, ctx: StepContext, t: float, h: float, q: int, y_p: np.ndarray,
                      y_c: np.ndarray) -> np.ndarray:
         """Per output: ‖u_best − u_c‖ / ‖u_p − u_c‖ over the inputs of the sub-model that owns it
-        (scaled, mean over the step).
+        (scaled, mean over the step), with the sign of ``⟨u_c − u_best, u_c − u_p⟩``.
 
         The curves are those the master used: a predicted output is extrapolated (degree ``q``)
         by the predictor and interpolated through the predictor's new value (``q + 1``) by the
@@ -350,6 +350,16 @@ class PredictorCorrector(_PolicyController):
         reads only slow inputs: on the double pendulum with a short light lower bar, the lower
         bar's error was then estimated 460× too low and ``pc`` delivered 15–29× tol
         (docs/concepts.md, "One input ratio per receiver").
+
+        Why a sign: the kept result's error is the response to ``u_c − u_best``, the experiment
+        measured the response to ``u_c − u_p``, and the two input errors need not point the
+        same way (an extrapolation overshoots where an interpolation undershoots). The ratio
+        is negative where their inner product over the step is (scaled, over the receiver's
+        inputs): its size, and so the step control, is unchanged; the sign is what the run's
+        estimate adds up as a time shift. With every ratio positive a limit cycle's shifts
+        cancelled where the solution's added up (the two-variable Oregonator at tol 1e-4:
+        estimated at 0.048 × its error, 0.25 × signed; docs/concepts.md, "The sign of the
+        corrector's input error").
         """
         plan = self._plan_for(ctx)
         if plan.cols.size == 0:
@@ -382,8 +392,10 @@ class PredictorCorrector(_PolicyController):
         # np.mean's sum over the four nodes and division by their count, without its wrapper
         moved = np.zeros(plan.outputs)
         left = np.zeros(plan.outputs)
+        along = np.zeros(plan.outputs)
         moved[cols] = np.add.reduce(np.abs(u_p - u_c), axis=0) / len(_NODES) / scale
         left[cols] = np.add.reduce(np.abs(u[4] - u_c), axis=0) / len(_NODES) / scale
+        along[cols] = np.add.reduce((u_c - u[4]) * (u_c - u_p), axis=0) / (scale * scale)
         ratio = np.ones(plan.outputs)
         for src, own in plan.readers:
             if src is None:
@@ -392,6 +404,8 @@ class PredictorCorrector(_PolicyController):
             m = float(moved[src].max())
             if m > 0:
                 ratio[own] = float(left[src].max()) / m
+                if float(along[src].sum()) < 0.0:  # see the docstring: the sign only
+                    ratio[own] = -ratio[own]
         return ratio
 
 
