@@ -158,8 +158,8 @@ def test_fading_applies_to_the_shift_as_to_the_rest() -> None:
 
 
 # measured (pc, gauss-seidel order 2, the suite's 20 s, tol 1e-2, one run): err/tol 7.57,
-# estimate/err 0.58 (0.443 before the local estimate took the corrector's sign; the plain sum of
-# the local estimates: 0.056); Van der Pol at 1e-3: 5.34, 0.29 (0.115)
+# estimate/err 0.58 (0.433 before the local estimate took the corrector's sign; the plain sum of
+# the local estimates: 0.056); Van der Pol at 1e-3: 5.34, 0.29 (0.130)
 def test_the_brusselator_knows_its_phase_error() -> None:
     problem = suite.get("brusselator")
     system, reference = problem.build()

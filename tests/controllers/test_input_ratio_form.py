@@ -105,7 +105,6 @@ def test_the_ratio_has_the_sign_of_the_input_error_left_in_the_corrector() -> No
             discrete=np.zeros(2, dtype=bool), held=np.zeros(2, dtype=bool),
             predicted=np.array([True, False]), iterated=False,
             readers=[(np.array([0]), slice(1, 2)), (np.array([], dtype=int), slice(0, 1))])
-        controller._plan = None
         ratio = controller._input_ratio(ctx, t, h, 2, new, new)[1]
 
         def curve(pts: list[float], values: list[float], t: float = t,

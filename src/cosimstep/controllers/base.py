@@ -312,11 +312,11 @@ class StepPolicy:
         by that estimate over the plain sum of the local estimates: what the time shift has
         made of the sum the control keeps within its share. Below ``tol`` nothing changes, so
         settling systems keep their runs. It brings the limit cycles' phase errors down (Van
-        der Pol at 1e-4: 14.7 -> 6.9 x tol) but trusts the estimate: where that overshoots a
-        run already within the band (the stiff two-mass example with IQN-ILS, its spring's
-        force met at 36,000 N/s), it spent 1.3-2.3 x the calls for the same error, which is
-        why it is not the default (docs/concepts.md, "The run's own estimate past the
-        tolerance").
+        der Pol at 1e-4: 29.4 -> 4.6 x tol, in one run each) but trusts the estimate: where
+        that overshoots a run already within the band (the stiff two-mass example with
+        IQN-ILS, its spring's force met at 36,000 N/s), it spent 1.3-2.3 x the calls for the
+        same error, which is why it is not the default (docs/concepts.md, "The run's own
+        estimate past the tolerance").
     cancellation:
         With ``global_error``: the sum of the local error estimates may reach
         ``cancellation × tol`` before a step is rejected. The control aims at ``target`` of

@@ -268,8 +268,9 @@ class PredictorCorrector(_PolicyController):
     the receivers by ``|y_c − y_p|``. The kept result's input error is estimated as
     ``u_best − u_c``, with ``u_best`` the interpolant one degree higher through the *corrected*
     new values. The receivers respond about linearly to input errors over one step, so the
-    corrector's error is ``|y_c − y_p| · ‖u_best − u_c‖ / ‖u_p − u_c‖`` — measured sensitivity,
-    no extra calls, no slopes.
+    corrector's error is ``(y_c − y_p) · ‖u_best − u_c‖ / ‖u_p − u_c‖``, negated where the
+    input error left points against the change tried (:meth:`_input_ratio`) — measured
+    sensitivity, no extra calls, no slopes.
 
     This needs receivers that follow the input curves (input derivatives, like the ODE adapter
     and FMUs with ``canInterpolateInputs``). When some receiver holds its inputs over a step, the
@@ -354,12 +355,14 @@ class PredictorCorrector(_PolicyController):
         Why a sign: the kept result's error is the response to ``u_c − u_best``, the experiment
         measured the response to ``u_c − u_p``, and the two input errors need not point the
         same way (an extrapolation overshoots where an interpolation undershoots). The ratio
-        is negative where their inner product over the step is (scaled, over the receiver's
-        inputs): its size, and so the step control, is unchanged; the sign is what the run's
-        estimate adds up as a time shift. With every ratio positive a limit cycle's shifts
-        cancelled where the solution's added up (the two-variable Oregonator at tol 1e-4:
-        estimated at 0.048 × its error, 0.25 × signed; docs/concepts.md, "The sign of the
-        corrector's input error").
+        is negative where their inner product over the step is (scaled, summed over the
+        receiver's inputs and the nodes; with several inputs the sign is that of the change
+        as a whole, while the size is the largest input's). The step control reads only the
+        size; the sign is what the run's estimate adds up as a time shift (and with
+        ``overrun``, where that estimate feeds back, it moves the steps too). With every ratio
+        positive a limit cycle's shifts cancelled where the solution's added up (the
+        two-variable Oregonator at tol 1e-4: estimated at 0.048 × its error, 0.25 × signed;
+        docs/concepts.md, "The sign of the corrector's input error").
         """
         plan = self._plan_for(ctx)
         if plan.cols.size == 0:
@@ -392,10 +395,10 @@ class PredictorCorrector(_PolicyController):
         # np.mean's sum over the four nodes and division by their count, without its wrapper
         moved = np.zeros(plan.outputs)
         left = np.zeros(plan.outputs)
-        along = np.zeros(plan.outputs)
+        agreement = np.zeros(plan.outputs)
         moved[cols] = np.add.reduce(np.abs(u_p - u_c), axis=0) / len(_NODES) / scale
         left[cols] = np.add.reduce(np.abs(u[4] - u_c), axis=0) / len(_NODES) / scale
-        along[cols] = np.add.reduce((u_c - u[4]) * (u_c - u_p), axis=0) / (scale * scale)
+        agreement[cols] = np.add.reduce((u_c - u[4]) * (u_c - u_p), axis=0) / (scale * scale)
         ratio = np.ones(plan.outputs)
         for src, own in plan.readers:
             if src is None:
@@ -404,7 +407,7 @@ class PredictorCorrector(_PolicyController):
             m = float(moved[src].max())
             if m > 0:
                 ratio[own] = float(left[src].max()) / m
-                if float(along[src].sum()) < 0.0:  # see the docstring: the sign only
+                if float(agreement[src].sum()) < 0.0:  # the error left opposes the change
                     ratio[own] = -ratio[own]
         return ratio
 
