@@ -25,8 +25,8 @@ from cosimstep.suite.base import connect_both_ways, ports
 
 
 def ode_model(rhs: Callable, states: dict[str, tuple[str, float]],
-         inputs: dict[str, tuple[str, float]], events: tuple[float, ...] = (),
-         max_dt: float = 1e-3) -> OdeSubModel:
+              inputs: dict[str, tuple[str, float]], events: tuple[float, ...] = (),
+              max_dt: float = 1e-3) -> OdeSubModel:
     """A sub-model as the suite and the holdout build them (``benchmarks/holdout.py`` uses it
     too): fixed-step RK4 inside, so that what is measured is the coupling's error, not the
     internal solver's."""
@@ -76,7 +76,7 @@ def dc_motor() -> tuple[System, Reference]:
                                  {"V": ("V", 0.0), "w": ("rad/s", 0.0)}))
     system.add("mech", ode_model(mechanical, {"w": ("rad/s", 0.0)}, {"i": ("A", 0.0)}))
     system.add("ctrl", ode_model(controller, {"I": ("rad", 0.0), "V": ("V", 0.0)},
-                            {"w": ("rad/s", 0.0)}, events=ev))
+                                 {"w": ("rad/s", 0.0)}, events=ev))
     system.connect("ctrl.V", "elec.V")
     system.connect("mech.w", "elec.w")
     system.connect("mech.w", "ctrl.w")
@@ -183,7 +183,7 @@ def cstr() -> tuple[System, Reference]:
     ca0, T0, Tj0 = CSTR_X0
     system = System()
     system.add("reactor", ode_model(reactor, {"ca": ("mol/L", ca0), "T": ("K", T0)},
-                               {"Tj": ("K", Tj0)}))
+                                    {"Tj": ("K", Tj0)}))
     system.add("jacket", ode_model(jacket, {"Tj": ("K", Tj0)}, {"T": ("K", T0)}))
     connect_both_ways(system, "reactor", "jacket", {"T": "T"}, {"Tj": "Tj"})
     mono = OdeSubModel(whole, ports({"ca": ("mol/L", ca0), "T": ("K", T0), "Tj": ("K", Tj0)}))
@@ -221,9 +221,9 @@ def enzyme() -> tuple[System, Reference]:
 
     system = System()
     system.add("slow", ode_model(slow, {"S": ("mol/L", p["S0"]), "P": ("mol/L", 0.0)},
-                            {"C": ("mol/L", 0.0)}))
+                                 {"C": ("mol/L", 0.0)}))
     system.add("fast", ode_model(fast, {"C": ("mol/L", 0.0)}, {"S": ("mol/L", p["S0"])},
-                            max_dt=2e-4))
+                                 max_dt=2e-4))
     connect_both_ways(system, "slow", "fast", {"S": "S"}, {"C": "C"})
     mono = OdeSubModel(whole, ports({"S": ("mol/L", p["S0"]), "P": ("mol/L", 0.0),
                                      "C": ("mol/L", 0.0)}))
