@@ -20,12 +20,14 @@ from cosimstep.controllers import Controller
 from cosimstep.estimate import FACTOR
 from cosimstep.kernel import Budget
 from cosimstep.masters import MasterOptions, trapezoidal_refusal
+from cosimstep.pair import difference
 from cosimstep.reference import Reference
 from cosimstep.result import ModelStats, SimulationResult
 from cosimstep.run import Run, scheme_for
 from cosimstep.system import System
 from cosimstep.tighten import (
     along_motion,
+    calibrated,
     for_repeat,
     keeps_repeat,
     may_repeat,
@@ -165,13 +167,30 @@ def simulate(
         return first
     # the controller that ran (a resumed run's too: a checkpoint is loaded into it) holds
     # the parts of its estimate that decide how the repeat treats the error memory
+    measure = _first_error(system, pristine) if estimate == "sum" else None
     return _repeat(first, factor, along_motion(controller), pristine, budget, config, once,
-                   raise_on_failure)
+                   raise_on_failure, measure)
+
+
+def _first_error(system: System, controller: Controller
+                 ) -> Callable[[SimulationResult, SimulationResult], float | None]:
+    """How the pair measures its first run (:func:`cosimstep.pair.difference`): in the norm
+    the controller's ``tol`` bounds, over the real outputs that are not piecewise constant."""
+    policy = controller.policy  # type: ignore[attr-defined]
+    skip = {f"{name}.{port.name}" for name, model in system.models.items()
+            for port in model.outputs if port.discrete or port.kind != "real"}
+    tol = policy.tol  # the scale at |y| over tol: |e| / (1 + |y|) for atol = rtol = tol
+
+    def measure(first: SimulationResult, repeat: SimulationResult) -> float | None:
+        return difference(first, repeat, lambda y: policy.scale(y) / tol, skip)
+    return measure
 
 
 def _repeat(first: SimulationResult, factor: float, forget: bool, pristine: Controller,
             budget: Budget, config: dict[str, Any] | None, once: Callable[..., SimulationResult],
-            raise_on_failure: bool) -> SimulationResult:
+            raise_on_failure: bool,
+            measure: Callable[[SimulationResult, SimulationResult], float | None] | None = None
+            ) -> SimulationResult:
     """The run again at ``factor`` × its tolerances, without the error memory where
     ``forget`` (:mod:`cosimstep.tighten`), or the first
     run's result where the repeat did not improve on it: a failure, or an estimate of its own
@@ -193,13 +212,15 @@ def _repeat(first: SimulationResult, factor: float, forget: bool, pristine: Cont
     def amend(result: SimulationResult) -> None:
         result.message += f"; {why}"
         result.tightened = facts
+        if measure is not None:
+            _calibrate(result, first, measure, tol)
 
     # a failing repeat is reported, not raised: the first run is a whole result to fall back on
     second = once(for_repeat(pristine, factor, forget), remaining, None,
                   {**(config or {}), "tightened": facts}, amend, repeat=True)
     at = f"at tol {tol * factor:.3g}" + (f" (run {second.run_id})" if second.run_id else "") \
         + (" without the error memory" if forget else "")
-    estimate = second.error_estimate
+    estimate = (second.tightened or {}).get("estimate_alone", second.error_estimate)
     if keeps_repeat(second.status, first.error_estimate, estimate):
         _amend(first, f"; repeated {at}, which is the result", False)
         return second
@@ -217,6 +238,27 @@ def _repeat(first: SimulationResult, factor: float, forget: bool, pristine: Cont
     if raise_on_failure and second.status == "interrupted":
         raise KeyboardInterrupt(first.message)  # the user stopped the repeat: stop the caller
     return first
+
+
+def _calibrate(repeat: SimulationResult, first: SimulationResult,
+               measure: Callable[[SimulationResult, SimulationResult], float | None],
+               tol: float) -> None:
+    """The repeat's estimate scaled by the first run's error as measured against the repeat
+    over the first run's own estimate (:func:`~cosimstep.tighten.calibrated`), where it is
+    the result; its own estimate and the first run's measured error are kept in
+    ``tightened`` (``estimate_alone``, ``error``). Nothing changes where the pair cannot be
+    compared."""
+    alone, before = repeat.error_estimate, first.error_estimate
+    if before is None or not before > 0 or not keeps_repeat(repeat.status, before, alone):
+        return  # (a repeat not kept is reported with the estimate it made)
+    error = measure(first, repeat)
+    if error is None or not (math.isfinite(error) and error > 0):
+        return
+    repeat.error_estimate = calibrated(alone, before, error)
+    repeat.tightened = {**(repeat.tightened or {}), "error": error, "estimate_alone": alone}
+    repeat.message += (f"; measured against this run, the first one's error is "
+                       f"{error / tol:.3g} x tol, {error / before:.3g} x its estimate: so is "
+                       f"this run's ({alone / tol:.3g} x tol alone)")
 
 
 def _other(run: str, tol: float, result: SimulationResult) -> dict[str, Any]:
