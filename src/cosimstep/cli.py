@@ -95,7 +95,8 @@ def main() -> None:
               "only where that estimate is mostly a time shift, once at a tighter TOL, kept "
               "unless it failed or estimates itself no better; both runs are stored, --json "
               "describes the other one as "
-              "`tightened`).")
+              "`tightened`: for a kept repeat also the first run's error measured against it, "
+              "`error`, by which over the first run's estimate its own estimate is scaled).")
 @click.option("--estimate", type=click.Choice(["sum", "rerun", "richardson"]), default="sum",
               show_default=True,
               help="How an adaptive run estimates its own global error (error_estimate): sum "
@@ -446,9 +447,11 @@ def _report(result: SimulationResult, as_json: bool) -> None:
                       "common grid, interpolated between them)" if "grid_max_scaled" in e else ""))
     other = summary.get("tightened")
     if other is not None and other["run"] == "first":
+        measured = f", measured against this run {other['error'] / other['tol']:.3g} x tol" \
+            if other.get("error") is not None else ""
         click.echo(f"repeated at a tighter tol: the run at tol {other['tol']:.3g} estimated "
-                   f"{other['error_estimate'] / other['tol']:.3g} x tol ({other['calls']} calls "
-                   "more, not counted above)")
+                   f"{other['error_estimate'] / other['tol']:.3g} x tol{measured} "
+                   f"({other['calls']} calls more, not counted above)")
     elif other is not None:
         how = f"estimated its own error at {other['error_estimate']:.3g}, no lower than this " \
             "run's" if other["status"] == "ok" and other["error_estimate"] is not None \

@@ -91,7 +91,11 @@ class SimulationResult:
     pair, whose calls are not in :attr:`calls` — ``run`` is ``"first"`` (this result is the
     repeat) or ``"repeat"`` (the repeat was not kept: it failed, or gave no estimate of its
     own lower than the first run's; with its ``status``), with its ``tol``,
-    ``error_estimate``, ``calls``, ``estimate_calls`` and ``run_id`` in the store.
+    ``error_estimate``, ``calls``, ``estimate_calls`` and ``run_id`` in the store. A kept
+    repeat of a run with the summed estimate also holds ``error``, the first run's error as
+    measured against the repeat (:mod:`cosimstep.pair`), and ``estimate_alone``, its own
+    estimate before it was scaled by ``error`` over the first run's estimate
+    (:func:`~cosimstep.tighten.calibrated`; :attr:`error_estimate` is the scaled one).
     ``None``: the run was not repeated."""
     traceback: str | None = field(default=None, repr=False)
     """A failed run's traceback, the sub-model's own exception included (``run -v`` prints

@@ -117,7 +117,10 @@ def simulate(
         returned unless it failed or its own estimate is missing or no lower than the first
         run's; its message says why, ``SimulationResult.tightened`` describes the other run
         (which, its tolerance, estimate, calls and store id; for the repeat whether it kept
-        the error memory) and ``calls_spent`` counts both. Both runs are stored, the one
+        the error memory) and ``calls_spent`` counts both. A kept repeat with the summed
+        estimate measures the first run against itself (:mod:`cosimstep.pair`) and scales its
+        own estimate by that run's measured error over its estimate
+        (:func:`~cosimstep.tighten.calibrated`). Both runs are stored, the one
         that is not the result marked so. A budget (``max_calls``, ``max_wall``) covers both,
         and no repeat starts where what is left could not pay for a run like the first.
         ``False``: one run, whatever its estimate.
