@@ -270,8 +270,10 @@ def run_cell(job: tuple[str, str, float, dict[str, object]]) -> dict:
     except Exception as exc:  # reported in the table, never a crash
         return {**row, "status": "error", "message": f"{type(exc).__name__}: {exc}"}
     err = result.error.max_scaled if result.error is not None else math.nan
+    other = result.tightened or {}
     return {**row, "status": result.status, "err": err, "estimate": result.error_estimate,
-            "calls": result.calls_spent, "repeated": (result.tightened or {}).get("run"),
+            "calls": result.calls_spent, "repeated": other.get("run"),
+            "first_measured": other.get("error"), "estimate_alone": other.get("estimate_alone"),
             "wall": time.perf_counter() - start}
 
 

@@ -42,7 +42,8 @@ from cosimstep import Fixed, simulate, suite
 from cosimstep.controllers import make_controller
 from cosimstep.estimate import FACTOR, rerun_estimate
 from cosimstep.masters import MasterOptions
-from cosimstep.tighten import along_motion, for_repeat, keeps_repeat, tightening
+from cosimstep.pair import first_error
+from cosimstep.tighten import along_motion, calibrated, for_repeat, keeps_repeat, tightening
 
 ROOT = Path(__file__).resolve().parents[1]
 TOLS = [1e-2, 1e-3, 1e-4, 1e-5, 1e-6]
@@ -132,7 +133,7 @@ def _tightened(job: dict, problem: Any, master: MasterOptions, r: Any,
     pristine = make_controller("pc", None, job["tol"], **job.get("options", {}))
     signal.setitimer(signal.ITIMER_REAL, TIME_LIMIT)  # the repeat has a time limit of its own
     try:
-        r2, estimate2, controller2, _ = _once(
+        r2, estimate2, controller2, system2 = _once(
             job, problem, for_repeat(pristine, factor, along_motion(controller)), master)
     except RunTimeout:
         return r, estimate, controller, {"run": "repeat", "tol": job["tol"] * factor,
@@ -141,9 +142,15 @@ def _tightened(job: dict, problem: Any, master: MasterOptions, r: Any,
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
     if keeps_repeat(r2.status, estimate, estimate2):
-        return r2, estimate2, controller2, {"run": "first", "tol": job["tol"],
-                                            "error_estimate": estimate,
-                                            "calls": r.calls_total, "per_model": dict(r.calls)}
+        # as simulate() does with the summed estimate: scaled by the first run's error as
+        # measured against the repeat over the first run's estimate
+        measured = first_error(r, r2, system2, pristine.policy)
+        other = {"run": "first", "tol": job["tol"], "error_estimate": estimate,
+                 "calls": r.calls_total, "per_model": dict(r.calls), "error": measured,
+                 "estimate_alone": estimate2, "first_err": r.error.max_scaled}
+        if measured is not None and measured > 0 and estimate:
+            estimate2 = calibrated(estimate2, estimate, measured)
+        return r2, estimate2, controller2, other
     return r, estimate, controller, {"run": "repeat", "tol": job["tol"] * factor,
                                      "error_estimate": estimate2, "status": r2.status,
                                      "calls": r2.calls_total, "per_model": dict(r2.calls)}

@@ -23,14 +23,27 @@ constant are compared (a switch that moved a step later is no error in the norm)
 from __future__ import annotations
 
 from collections.abc import Callable, Collection
+from typing import Any
 
 import numpy as np
 
 from cosimstep.result import SimulationResult
+from cosimstep.system import System
 
 SHIFTS = (-3, -2, -1, 0, 1)
 """Where the four points of a stencil start, relative to the repeat's point at or before the
 time read: wholly before it (−3), holding its interval (−2, −1, 0), wholly after it (1)."""
+
+
+def first_error(first: SimulationResult, repeat: SimulationResult, system: System,
+                policy: Any) -> float | None:
+    """:func:`difference` in the norm the step policy's ``tol`` bounds (``|e| / (1 + |y|)`` for
+    ``atol = rtol = tol``), over the real outputs of ``system`` that are not piecewise
+    constant; ``policy``: the first run's (a :class:`~cosimstep.controllers.StepPolicy`)."""
+    skip = {f"{name}.{port.name}" for name, model in system.models.items()
+            for port in model.outputs if port.discrete or port.kind != "real"}
+    tol = policy.tol
+    return difference(first, repeat, lambda y: policy.scale(y) / tol, skip)
 
 
 def difference(first: SimulationResult, repeat: SimulationResult,

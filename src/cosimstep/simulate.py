@@ -20,7 +20,7 @@ from cosimstep.controllers import Controller
 from cosimstep.estimate import FACTOR
 from cosimstep.kernel import Budget
 from cosimstep.masters import MasterOptions, trapezoidal_refusal
-from cosimstep.pair import difference
+from cosimstep.pair import first_error
 from cosimstep.reference import Reference
 from cosimstep.result import ModelStats, SimulationResult
 from cosimstep.run import Run, scheme_for
@@ -177,16 +177,9 @@ def simulate(
 
 def _first_error(system: System, controller: Controller
                  ) -> Callable[[SimulationResult, SimulationResult], float | None]:
-    """How the pair measures its first run (:func:`cosimstep.pair.difference`): in the norm
-    the controller's ``tol`` bounds, over the real outputs that are not piecewise constant."""
+    """How the pair measures its first run (:func:`cosimstep.pair.first_error`)."""
     policy = controller.policy  # type: ignore[attr-defined]
-    skip = {f"{name}.{port.name}" for name, model in system.models.items()
-            for port in model.outputs if port.discrete or port.kind != "real"}
-    tol = policy.tol  # the scale at |y| over tol: |e| / (1 + |y|) for atol = rtol = tol
-
-    def measure(first: SimulationResult, repeat: SimulationResult) -> float | None:
-        return difference(first, repeat, lambda y: policy.scale(y) / tol, skip)
-    return measure
+    return lambda first, repeat: first_error(first, repeat, system, policy)
 
 
 def _repeat(first: SimulationResult, factor: float, forget: bool, pristine: Controller,
