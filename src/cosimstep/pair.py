@@ -3,11 +3,11 @@
 A run repeated at a tighter tolerance leaves two solutions of the same system. The repeat is
 the more accurate one by construction (its tolerance is at least twice tighter), so the largest
 difference between the two, in the norm ``tol`` bounds, is a measurement of the first run's
-error made without a reference: within 0.3–3.8 × that error on the 73 repeated runs of the
-suite and the holdout systems where it was compared (docs/concepts.md, "The first run measured
-by its repeat"). That is what the summed estimate lacks — each local estimate is right to a
-factor of a few, but how the errors add up differs from system to system — and the pair holds
-it for this system: :func:`~cosimstep.tighten.calibrated` scales the repeat's estimate by it.
+error made without a reference: 0.42–2.6 × that error (median 0.89) on the suite's 25
+repeated runs (docs/concepts.md, "The first run measured by its repeat"). That is what the
+summed estimate lacks — each local estimate is right to a factor of a few, but how the errors
+add up differs from system to system — and the pair holds it for this system:
+:func:`~cosimstep.tighten.calibrated` scales the repeat's estimate by it.
 
 Where: at each of the first run's own points (every sub-model's, :class:`ModelStats`), against
 the repeat's points of the same sub-model. The repeat is read between its points by a cubic
