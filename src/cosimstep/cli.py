@@ -95,8 +95,9 @@ def main() -> None:
               "only where that estimate is mostly a time shift, once at a tighter TOL, kept "
               "unless it failed or estimates itself no better; both runs are stored, --json "
               "describes the other one as "
-              "`tightened`: for a kept repeat also the first run's error measured against it, "
-              "`error`, by which over the first run's estimate its own estimate is scaled).")
+              "`tightened`; with the default --estimate sum a kept repeat's error_estimate is "
+              "its own (`tightened.estimate_alone`) times the first run's error measured "
+              "against it (`tightened.error`) over the first run's estimate).")
 @click.option("--estimate", type=click.Choice(["sum", "rerun", "richardson"]), default="sum",
               show_default=True,
               help="How an adaptive run estimates its own global error (error_estimate): sum "

@@ -90,7 +90,7 @@ class SimulationResult:
     ``tol`` (``simulate(tighten=True)``, :mod:`cosimstep.tighten`): the *other* run of the
     pair, whose calls are not in :attr:`calls` — ``run`` is ``"first"`` (this result is the
     repeat) or ``"repeat"`` (the repeat was not kept: it failed, or gave no estimate of its
-    own lower than the first run's; with its ``status``), with its ``tol``,
+    own — unscaled — lower than the first run's; with its ``status``), with its ``tol``,
     ``error_estimate``, ``calls``, ``estimate_calls`` and ``run_id`` in the store. A kept
     repeat of a run with the summed estimate also holds ``error``, the first run's error as
     measured against the repeat (:mod:`cosimstep.pair`), and ``estimate_alone``, its own

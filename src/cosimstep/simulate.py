@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from cosimstep.controllers import Controller
+from cosimstep.controllers import Controller, StepPolicy
 from cosimstep.estimate import FACTOR
 from cosimstep.kernel import Budget
 from cosimstep.masters import MasterOptions, trapezoidal_refusal
@@ -178,7 +178,7 @@ def simulate(
 def _first_error(system: System, controller: Controller
                  ) -> Callable[[SimulationResult, SimulationResult], float | None]:
     """How the pair measures its first run (:func:`cosimstep.pair.first_error`)."""
-    policy = controller.policy  # type: ignore[attr-defined]
+    policy: StepPolicy = controller.policy  # type: ignore[attr-defined]
     return lambda first, repeat: first_error(first, repeat, system, policy)
 
 
@@ -243,18 +243,25 @@ def _calibrate(repeat: SimulationResult, first: SimulationResult,
     over the first run's own estimate (:func:`~cosimstep.tighten.calibrated`), where it is
     the result; its own estimate and the first run's measured error are kept in
     ``tightened`` (``estimate_alone``, ``error``). Nothing changes where the pair cannot be
-    compared."""
+    compared.
+
+    Whether the repeat is the result is decided on its own estimate, unscaled (:func:`_repeat`
+    reads ``estimate_alone``): the scaled one may exceed the first run's estimate, which was
+    never measured. This check runs first, with the same rule, so that a repeat that is not
+    kept keeps the estimate it made."""
     alone, before = repeat.error_estimate, first.error_estimate
-    if before is None or not before > 0 or not keeps_repeat(repeat.status, before, alone):
-        return  # (a repeat not kept is reported with the estimate it made)
+    if before is None or not (math.isfinite(before) and before > 0) \
+            or not keeps_repeat(repeat.status, before, alone):
+        return
     error = measure(first, repeat)
     if error is None or not (math.isfinite(error) and error > 0):
         return
     repeat.error_estimate = calibrated(alone, before, error)
     repeat.tightened = {**(repeat.tightened or {}), "error": error, "estimate_alone": alone}
     repeat.message += (f"; measured against this run, the first one's error is "
-                       f"{error / tol:.3g} x tol, {error / before:.3g} x its estimate: so is "
-                       f"this run's ({alone / tol:.3g} x tol alone)")
+                       f"{error / tol:.3g} x tol, {error / before:.3g} x its estimate: this "
+                       f"run's estimate is scaled alike, to {repeat.error_estimate / tol:.3g} "
+                       f"x tol ({alone / tol:.3g} x tol alone)")
 
 
 def _other(run: str, tol: float, result: SimulationResult) -> dict[str, Any]:

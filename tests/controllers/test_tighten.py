@@ -64,8 +64,10 @@ def test_a_run_whose_estimate_cannot_vouch_for_its_tolerance_is_repeated_tighter
         f"own error at {ratio:.3g} x tol, past 2 x tol, where more than 10 x tol cannot be "
         f"ruled out ({alone.calls_total} calls); measured against this run, the first one's "
         f"error is {measured / tol:.3g} x tol, {measured / alone.error_estimate:.3g} x its "
-        f"estimate: so is this run's ({own / tol:.3g} x tol alone); its own error estimate is "
-        f"{result.error_estimate / tol:.3g} x tol (tighten tol, or check against a reference)")
+        f"estimate: this run's estimate is scaled alike, to "
+        f"{result.error_estimate / tol:.3g} x tol ({own / tol:.3g} x tol alone); its own "
+        f"error estimate is {result.error_estimate / tol:.3g} x tol (tighten tol, or check "
+        "against a reference)")
     # the repeat is exactly a run at the reduced tolerance without the error memory's probes:
     # the same calls, the same values
     direct = _van_der_pol(tol / ratio, {"probe_every": 0}, tighten=False)
@@ -285,6 +287,69 @@ def test_the_pair_measures_the_first_run_not_the_jumps_between_the_repeat_s_poin
     assert gap == pytest.approx(1e-3 / (1.0 + np.sin(0.0)), rel=1e-3)
     # the switch, compared, would count its early change (at 0.6 and 0.9) as an error of one
     assert difference(first, repeat, lambda y: 1.0 + np.abs(y)) == 1.0
+    # ... but not a change at the first run's next point after the repeat's (1.002 for 1.0):
+    # within a few of the repeat's points a stencil on the same side of it is found
+    late = _run_of(coarse, {"y": exact(coarse) + 1e-3, "switch": (coarse >= 1.002) * 1.0})
+    assert difference(late, repeat, lambda y: 1.0 + np.abs(y)) == pytest.approx(1e-3)
+    # a first run whose own points begin after its result's (resumed from a checkpoint) is
+    # not measured: the difference could lie before them
+    resumed = _run_of(coarse[2:], {"y": exact(coarse[2:]) + 1e-3, "switch": coarse[2:] * 0})
+    resumed.times = coarse
+    assert difference(resumed, repeat, lambda y: 1.0 + np.abs(y)) is None
+
+
+def test_the_pair_compares_the_real_outputs_that_are_not_piecewise_constant() -> None:
+    """``first_error`` leaves a system's discrete and coded outputs out, in the norm of the
+    first run's tolerance (``|e| / (1 + |y|)`` for atol = rtol = tol)."""
+    from cosimstep.pair import first_error
+    from cosimstep.submodel import Port, SubModel
+
+    class Switcher(SubModel):
+        outputs = (Port("y"), Port("switch", discrete=True), Port("mode", kind="integer"))
+
+        def set_inputs(self, values: np.ndarray) -> None:
+            pass
+
+        def do_step(self, t: float, h: float) -> None:
+            pass
+
+        def get_outputs(self) -> np.ndarray:
+            return np.zeros(3)
+
+    system = cs.System().add("m", Switcher())
+    times = np.linspace(0.0, 1.0, 11)
+    repeat = _run_of(times, {"y": np.sin(times), "switch": times * 0, "mode": times * 0})
+    first = _run_of(times, {"y": np.sin(times) + 2e-3, "switch": times * 0 + 1,
+                            "mode": times * 0 + 3})
+    policy = cs.make_controller("pc", None, 1e-3).policy
+    assert first_error(first, repeat, system, policy) == pytest.approx(2e-3)  # at t = 0
+
+
+def test_the_repeat_is_kept_on_its_own_estimate_not_on_the_scaled_one() -> None:
+    """The first run estimated 3 x tol and measures 6 x tol against its repeat, whose own
+    estimate is 2 x tol: scaled, 4 x tol, above the first run's 3 x — which was never
+    measured, so the comparison is between the two runs' own estimates, and the repeat is
+    the result (as it was before the scaling)."""
+    from cosimstep.kernel import Budget
+    from cosimstep.simulate import _repeat
+
+    tol = 1e-3
+    times = np.linspace(0.0, 1.0, 11)
+    first = _run_of(times, {"y": np.sin(times)})
+    first.error_estimate = 3 * tol
+    second = _run_of(times, {"y": np.sin(times)})
+    second.error_estimate = 2 * tol
+
+    def once(controller, budget, resume, config, amend, repeat=False):
+        amend(second)
+        return second
+
+    result = _repeat(first, 1 / 3, False, cs.make_controller("pc", None, tol),
+                     Budget(None, None), None, once, False, lambda a, b: 6 * tol)
+    assert result is second and result.tightened["run"] == "first"
+    assert result.tightened["estimate_alone"] == 2 * tol and result.tightened["error"] == 6 * tol
+    assert result.error_estimate == pytest.approx(4 * tol)
+    assert first.message.endswith("which is the result")
 
 
 def test_a_kept_repeat_s_estimate_is_scaled_by_its_first_run_s_measured_error() -> None:
