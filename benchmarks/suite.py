@@ -148,9 +148,9 @@ def _tightened(job: dict, problem: Any, master: MasterOptions, r: Any,
         other = {"run": "first", "tol": job["tol"], "error_estimate": estimate,
                  "calls": r.calls_total, "per_model": dict(r.calls), "error": measured,
                  "estimate_alone": estimate2, "first_err": r.error.max_scaled}
-        if measured is not None and math.isfinite(measured) and measured > 0 \
-                and estimate is not None and math.isfinite(estimate) and estimate > 0:
-            estimate2 = calibrated(estimate2, estimate, measured)
+        scaled = calibrated(estimate2, estimate, measured)
+        if scaled is not None:
+            estimate2 = scaled
         return r2, estimate2, controller2, other
     return r, estimate, controller, {"run": "repeat", "tol": job["tol"] * factor,
                                      "error_estimate": estimate2, "status": r2.status,

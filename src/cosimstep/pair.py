@@ -72,9 +72,9 @@ def difference(first: SimulationResult, repeat: SimulationResult,
                 or own.times[0] > first.times[0]:
             return None
         inside = (own.times >= other.times[0]) & (own.times <= other.times[-1])
-        at = own.times[inside]
-        near = _nearest(other.times, other.values[:, cols], at, own.values[inside][:, cols])
-        gap = np.abs(own.values[inside][:, cols] - near) / scale(near)
+        mine = own.values[inside][:, cols]
+        near = _nearest(other.times, other.values[:, cols], own.times[inside], mine)
+        gap = np.abs(mine - near) / scale(near)
         if np.isfinite(gap).any():
             worst, compared = max(worst, float(np.nanmax(gap))), True
     return worst if compared else None

@@ -250,13 +250,14 @@ def _calibrate(repeat: SimulationResult, first: SimulationResult,
     never measured. This check runs first, with the same rule, so that a repeat that is not
     kept keeps the estimate it made."""
     alone, before = repeat.error_estimate, first.error_estimate
-    if before is None or not (math.isfinite(before) and before > 0) \
-            or not keeps_repeat(repeat.status, before, alone):
+    if before is None or not keeps_repeat(repeat.status, before, alone):
         return
     error = measure(first, repeat)
-    if error is None or not (math.isfinite(error) and error > 0):
+    scaled = calibrated(alone, before, error)
+    if scaled is None:
         return
-    repeat.error_estimate = calibrated(alone, before, error)
+    assert alone is not None and error is not None  # (calibrated gave a number)
+    repeat.error_estimate = scaled
     repeat.tightened = {**(repeat.tightened or {}), "error": error, "estimate_alone": alone}
     repeat.message += (f"; measured against this run, the first one's error is "
                        f"{error / tol:.3g} x tol, {error / before:.3g} x its estimate: this "

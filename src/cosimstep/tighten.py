@@ -34,6 +34,7 @@ says it missed by a million is better reported than run for days.
 from __future__ import annotations
 
 import copy
+import math
 from typing import Any
 
 SPREAD = 5.0
@@ -80,9 +81,11 @@ def keeps_repeat(status: str, first: float, repeat: float | None) -> bool:
     return status == "ok" and repeat is not None and repeat <= first
 
 
-def calibrated(estimate: float, first_estimate: float, first_error: float) -> float:
+def calibrated(estimate: float | None, first_estimate: float | None,
+               first_error: float | None) -> float | None:
     """The repeat's estimate scaled by how far the first run's own estimate was from that
-    run's error as the repeat measures it (:func:`cosimstep.pair.difference`).
+    run's error as the repeat measures it (:func:`cosimstep.pair.difference`); ``None``
+    where one of the three is missing, not finite, or (the first run's two) not positive.
 
     Why: the summed estimate's local parts are right to a few times (docs/concepts.md,
     "Where the summed estimate and the error part"), but how the errors add up — fade,
@@ -94,6 +97,10 @@ def calibrated(estimate: float, first_estimate: float, first_error: float) -> fl
     11 → 10; on four systems built afterwards for the check, 9 → 0 of the 15 kept repeats.
     The decision to keep the repeat is not made on it but on the repeat's own estimate, as
     before (:func:`keeps_repeat`)."""
+    if estimate is None or first_estimate is None or first_error is None \
+            or not (math.isfinite(estimate) and 0 < first_estimate < math.inf
+                    and 0 < first_error < math.inf):
+        return None
     return estimate * first_error / first_estimate
 
 
