@@ -76,11 +76,38 @@ def test_instances_of_one_fmu_share_one_unpacked_folder(bar_fmus):
         b.do_step(0.0, 0.01)
         assert np.array_equal(a.get_outputs(), b.get_outputs())
     finally:
-        folder = a._unzipped
+        folder, library = a._unzipped, a._fmu.dll._handle
         a.terminate()
         assert folder.is_dir()  # b still uses it
         b.terminate()
-    assert not folder.exists()
+    assert folder.is_dir()  # its library stays loaded: a later instance finds both
+    c = FmuSubModel(bar_fmus[1], instance_name="c")
+    c.initialize(0.0)
+    try:
+        assert c._unzipped == folder and c._fmu.dll._handle == library
+    finally:
+        c.terminate()
+
+
+def test_a_loaded_library_and_its_folder_go_when_the_process_exits(bar_fmus):
+    """The library is never unloaded (an FMU's state beyond its instances need not survive
+    being loaded again: docs/reliability.md); its folder goes at exit."""
+    import subprocess
+    import sys
+
+    script = ("import sys\n"
+              "from cosimstep.adapters.fmu import FmuSubModel\n"
+              "for name in ('a', 'b'):\n"
+              "    m = FmuSubModel(sys.argv[1], instance_name=name)\n"
+              "    m.initialize(0.0)\n"
+              "    m.do_step(0.0, 0.01)\n"
+              "    folder = m._unzipped\n"
+              "    m.terminate()\n"
+              "print(folder, folder.is_dir())\n")
+    done = subprocess.run([sys.executable, "-c", script, str(bar_fmus[1])],
+                          capture_output=True, text=True, check=True, timeout=120)
+    folder, existed = done.stdout.split()
+    assert existed == "True" and not Path(folder).exists()
 
 
 def test_folders_left_by_a_killed_process_are_swept(tmp_path):

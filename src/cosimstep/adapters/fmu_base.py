@@ -13,6 +13,7 @@ FMU-state pointers for reuse until :meth:`FmuBase.terminate` frees them. The ada
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import dataclasses
 import functools
@@ -524,6 +525,8 @@ class FmuBase(SubModel):
         self._fmu = fmu_class(guid=self.model_description.guid, unzipDirectory=self._unpack(),
                               modelIdentifier=self.interface.modelIdentifier,
                               instanceName=self.name)
+        assert self._unzipped is not None
+        _UNPACKED.keep(self._unzipped)  # the library is loaded now, and stays (see _Unpacked)
         return self._fmu
 
     def _start_values(self, inputs: bool) -> list[tuple[ModelVariable, Any]]:
@@ -600,7 +603,8 @@ class FmuBase(SubModel):
             raise self._error(f"{self.CALL_PREFIX}Set{self._state_word}", exc) from None
 
     def terminate(self) -> None:
-        """Terminate and free the instance, free saved states, remove the unpacked files.
+        """Terminate and free the instance, free saved states, release the unpacked files (the
+        library and its folder stay for later instances, see :class:`_Unpacked`).
 
         Every part runs even if an earlier one failed; the first failure is raised at the end.
         """
@@ -623,13 +627,13 @@ class FmuBase(SubModel):
                         free(fmu.component, byref(pointer))
             self._spare_states = []
             if fmu.component is not None:
+                # the instance only: the library stays loaded (``_Unpacked``), where the
+                # library objects' own ``freeInstance`` would unload it too
                 try:
-                    fmu.freeInstance()
+                    getattr(fmu, f"{self.CALL_PREFIX}FreeInstance")(fmu.component)
                 except Exception as exc:
                     first = first or self._error(f"{self.CALL_PREFIX}FreeInstance", exc)
-            else:
-                with contextlib.suppress(Exception):
-                    fmu.freeLibrary()
+                fmu.component = None
         self._initialized = False
         if self._unzipped is not None:
             _UNPACKED.release(self._unzipped)
@@ -639,17 +643,30 @@ class FmuBase(SubModel):
 
 
 class _Unpacked:
-    """One unpacked folder per FMU file, shared by every instance of it that is alive.
+    """One unpacked folder per FMU file, shared by every instance of it.
 
     An FMU's files are read-only to its instances (FMI: the resource location is for reading),
     so instances of one FMU need one copy: a system of ten instances of one FMU unpacked ten
-    times before. The folder goes when the last instance using it is terminated. A file that
-    changed on disk (size or modification time) gets a fresh folder.
+    times before. A file that changed on disk (size or modification time) gets a fresh folder.
+
+    A folder whose shared library has been loaded (:meth:`keep`) stays, and the library with it,
+    until the process exits; any other goes when the last instance using it is terminated. Why
+    the library is never unloaded: an FMU's library is free to keep state beyond its instances
+    that does not survive being unloaded and loaded again in the same process — most plainly
+    one that embeds the Python interpreter (pythonfmu) and leaves objects in the interpreter
+    that is running cosimstep. The ship plant with its pythonfmu zone
+    (``examples/ship_plant_fmu.toml``), whose run is repeated at a tighter tolerance and so
+    instantiates the FMU again after its first instances were freed and the library unloaded,
+    ended every time with ``free(): corrupted unsorted chunks`` and exit code 134 after writing
+    its results; with the library kept loaded it ends cleanly. A later instance of the same file
+    then also skips the unpacking and the loading.
     """
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._folders: dict[tuple[str, int, int], list] = {}  # key -> [folder, users]
+        # key -> [folder, users, kept: whether its library was loaded]
+        self._folders: dict[tuple[str, int, int], list] = {}
+        self._cleanup = False
 
     def acquire(self, path: Path) -> Path:
         info = path.stat()
@@ -665,20 +682,38 @@ class _Unpacked:
                 except BaseException:
                     shutil.rmtree(folder, ignore_errors=True)
                     raise
-                entry = self._folders[key] = [folder, 0]
+                entry = self._folders[key] = [folder, 0, False]
             entry[1] += 1
             return entry[0]
+
+    def keep(self, folder: Path) -> None:
+        """``folder``'s library has been loaded: keep both until the process exits."""
+        with self._lock:
+            for entry in self._folders.values():
+                if entry[0] == folder:
+                    entry[2] = True
+            if not self._cleanup:
+                self._cleanup = True
+                atexit.register(self._remove_kept)
 
     def release(self, folder: Path) -> None:
         with self._lock:
             for key, entry in list(self._folders.items()):
                 if entry[0] == folder:
                     entry[1] -= 1
-                    if entry[1] <= 0:
+                    if entry[1] <= 0 and not entry[2]:
                         del self._folders[key]
                         shutil.rmtree(folder, ignore_errors=True)
                     return
         shutil.rmtree(folder, ignore_errors=True)  # not ours: remove it as before
+
+    def _remove_kept(self) -> None:
+        """At exit: the kept folders go (a loaded library's file can be removed on POSIX; where
+        it cannot, the next process's sweep of dead processes' folders takes it)."""
+        with self._lock:
+            for folder, _, kept in self._folders.values():
+                if kept:
+                    shutil.rmtree(folder, ignore_errors=True)
 
 
 _UNPACKED = _Unpacked()
