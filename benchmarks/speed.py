@@ -16,7 +16,8 @@
 5. FMU set-up: the first instance of an FMU and each further one (the unpacked folder is
    shared; target ≤ 1 ms), and the teardown of 1,000 instances.
 
-Every timing is the median of interleaved repetitions in this one process.
+Every timing is the median of interleaved repetitions in this one process (the first FMU
+instance in fresh ones, see :func:`fmu_costs`).
 
 Run: ``python benchmarks/speed.py`` (about three minutes); ``--only overhead`` measures and
 rewrites part 1's table alone.

@@ -45,7 +45,12 @@ def new_folder(label: str) -> Path:
     if not _swept:
         _swept = True
         sweep()
-    folder = Path(tempfile.mkdtemp(prefix=f"{PREFIX}{label}-"))
+    return mark(Path(tempfile.mkdtemp(prefix=f"{PREFIX}{label}-")))
+
+
+def mark(folder: Path) -> Path:
+    """``folder`` (created if missing) marked with the owning process (:func:`new_folder`)."""
+    folder.mkdir(parents=True, exist_ok=True)
     (folder / OWNER_FILE).write_text(f"{socket.gethostname()} {os.getpid()}\n")
     return folder
 

@@ -285,7 +285,7 @@ class Synchronous(Scheme):
             if self.loop is not None:
                 self.loop.finish()  # hands the last rows to the store (may fail: disk full)
         finally:
-            self.runner.terminate(self.hung)  # frees FMU instances and unpacked folders
+            self.runner.terminate(self.hung)  # frees FMU instances (their folders: fmu_base)
 
     def outcome(self) -> Outcome:
         assert self.loop is not None

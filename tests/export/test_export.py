@@ -183,3 +183,22 @@ def test_adaptive_run_with_rollback(exported_bars: dict[int, Path], examples: Pa
     spec.reference.solve(0.0, until)
     error = np.max(np.abs(result.values - spec.reference.values(result.times, result.names)))
     assert error < 1e-4  # measured 4.6e-5 in 2467 steps
+
+
+def test_exported_fmus_run_on_one_copy_of_the_runtime(exported_bars: dict[int, Path]) -> None:
+    """Every pythonfmu FMU ships the same runtime library; unpacked, the two bars' binaries are
+    one file, so the loader maps one copy of it (two copies share process-wide C++ objects and
+    both destroy them at exit: docs/reliability.md)."""
+    import os
+
+    bars = [FmuSubModel(exported_bars[i]) for i in (1, 2)]
+    for model in bars:
+        model.initialize(0.0)
+    try:
+        libraries = [Path(m._fmu.dll._name) for m in bars]
+        assert libraries[0] != libraries[1]  # each FMU's own name and folder
+        assert os.stat(libraries[0]).st_ino == os.stat(libraries[1]).st_ino
+        assert bars[0]._fmu.dll._handle == bars[1]._fmu.dll._handle
+    finally:
+        for model in bars:
+            model.terminate()

@@ -58,7 +58,7 @@ def test_an_ssp_above_the_limit_is_a_configuration_error(bar_fmus, tmp_path, mon
     assert _unpacked() == before
 
 
-def test_instances_of_one_fmu_share_one_unpacked_folder(bar_fmus):
+def test_instances_of_one_fmu_share_one_unpacked_folder(bar_fmus, tmp_path):
     import numpy as np
 
     from cosimstep.adapters.fmu import FmuSubModel
@@ -76,17 +76,67 @@ def test_instances_of_one_fmu_share_one_unpacked_folder(bar_fmus):
         b.do_step(0.0, 0.01)
         assert np.array_equal(a.get_outputs(), b.get_outputs())
     finally:
-        folder, library = a._unzipped, a._fmu.dll._handle
+        folder, library = a._unzipped, a._fmu.dll._name
         a.terminate()
         assert folder.is_dir()  # b still uses it
         b.terminate()
-    assert folder.is_dir()  # its library stays loaded: a later instance finds both
-    c = FmuSubModel(bar_fmus[1], instance_name="c")
-    c.initialize(0.0)
+    assert folder.is_dir() and _loaded(library)  # kept: a later instance finds both
+    copy = shutil.copy(bar_fmus[1], tmp_path / "elsewhere.fmu")  # same content, other path
+    for model in (FmuSubModel(bar_fmus[1], instance_name="c"), FmuSubModel(copy)):
+        model.initialize(0.0)
+        try:
+            assert model._unzipped == folder
+        finally:
+            model.terminate()
+    shutil.rmtree(folder)  # a cleaner of the temporary directory
+    model = FmuSubModel(bar_fmus[1])
+    model.initialize(0.0)  # unpacked again where the loaded library expects it
     try:
-        assert c._unzipped == folder and c._fmu.dll._handle == library
+        assert model._unzipped == folder and (folder / ".cosimstep-owner").is_file()
+        model.do_step(0.0, 0.01)
     finally:
-        c.terminate()
+        model.terminate()
+
+
+def _loaded(library: str) -> bool:
+    """Whether the shared library at ``library`` is mapped in this process (dlopen with
+    RTLD_NOLOAD fails for one that is not)."""
+    import ctypes
+    import os
+
+    try:
+        ctypes.CDLL(library, mode=os.RTLD_NOLOAD | os.RTLD_LAZY)
+    except OSError:
+        return False
+    return True
+
+
+def test_an_fmu_that_runs_once_per_process_is_refused_twice_and_unloaded(bar_fmus, tmp_path):
+    """canBeInstantiatedOnlyOncePerProcess: a second live instance is refused with the reason;
+    the library goes with the instance, so a later one starts from a fresh library."""
+    from cosimstep.adapters.fmu import FmuSubModel
+    from cosimstep.adapters.fmu_base import FmuError
+
+    once = tmp_path / "once.fmu"
+    with zipfile.ZipFile(bar_fmus[1]) as src, zipfile.ZipFile(once, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "modelDescription.xml":
+                data = data.replace(b'canBeInstantiatedOnlyOncePerProcess="false"',
+                                    b'canBeInstantiatedOnlyOncePerProcess="true"')
+            dst.writestr(item, data)
+    first = FmuSubModel(once, instance_name="first")
+    first.initialize(0.0)
+    folder, library = first._unzipped, first._fmu.dll._name
+    try:
+        with pytest.raises(FmuError, match=r"only once per process.*'first' is alive"):
+            FmuSubModel(once, instance_name="second").initialize(0.0)
+    finally:
+        first.terminate()
+    assert not folder.exists() and not _loaded(library)
+    again = FmuSubModel(once, instance_name="again")
+    again.initialize(0.0)
+    again.terminate()
 
 
 def test_a_loaded_library_and_its_folder_go_when_the_process_exits(bar_fmus):

@@ -19,8 +19,10 @@ kind the adapter runs, or holds an entry that would unpack outside its folder is
 ``ValueError`` naming the file and the reason. FMI 3.0 co-simulation FMUs run in
 :mod:`cosimstep.adapters.fmu3`, model-exchange FMUs in :mod:`cosimstep.adapters.fmu_me`;
 :func:`cosimstep.adapters.fmu_open.open_fmu` picks the adapter. The archive is unpacked into a
-temporary folder by :meth:`FmuSubModel.initialize` and the folder is removed by
-:meth:`FmuSubModel.terminate`, also when a call failed.
+temporary folder by :meth:`FmuSubModel.initialize`, shared by every instance of the same file
+and kept with the loaded library until the process exits
+(:class:`~cosimstep.adapters.fmu_base._Unpacked`); :meth:`FmuSubModel.terminate` frees the
+instance, also when a call failed.
 """
 
 from __future__ import annotations

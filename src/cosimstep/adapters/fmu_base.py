@@ -4,7 +4,8 @@
 FMI version and kind to run. :class:`FmuBase` reads the model description (checked for the
 version and kind the subclass runs), turns its Float64/Real inputs and outputs into ports, checks
 start-value overrides, formats failed FMI calls as :class:`FmuError` naming the FMU, the call and
-what the FMU logged, unpacks the archive into a temporary folder and removes it again, and keeps
+what the FMU logged, unpacks the archive into a temporary folder shared by every instance of the
+same file (:class:`_Unpacked`: kept, with the loaded library, until the process exits), and keeps
 FMU-state pointers for reuse until :meth:`FmuBase.terminate` frees them. The adapters are
 :class:`~cosimstep.adapters.fmu.FmuSubModel` (FMI 2.0 co-simulation),
 :class:`~cosimstep.adapters.fmu3.Fmu3SubModel` (FMI 3.0 co-simulation) and
@@ -17,6 +18,7 @@ import atexit
 import contextlib
 import dataclasses
 import functools
+import os
 import shutil
 import sys
 import threading
@@ -39,7 +41,7 @@ from fmpy.fmi2 import (
 )
 from fmpy.model_description import ModelDescription, ModelVariable, ValidationError
 
-from cosimstep.archive import escapes, new_folder, size_problems
+from cosimstep.archive import escapes, mark, new_folder, size_problems
 from cosimstep.errors import EndOfSimulation
 from cosimstep.submodel import ELEMENT, Port, SubModel
 from cosimstep.symbols import SYMBOLS
@@ -274,6 +276,7 @@ class FmuBase(SubModel):
         self._out_vr = [v.valueReference for v in self._out_vars]
         self._fmu: Any = None
         self._unzipped: Path | None = None
+        self._once_key: tuple | None = None  # see _OncePerProcess
         self._initialized = False
         self._states: weakref.WeakSet[_SavedState] = weakref.WeakSet()
         self._spare_states: list[c_void_p] = []
@@ -516,17 +519,36 @@ class FmuBase(SubModel):
 
     # -- lifecycle ------------------------------------------------------------------------------
     def _unpack(self) -> str:
-        self._unzipped = _UNPACKED.acquire(self.path)
+        # an FMU that runs once per process gets a library of its own, to unload (see _load)
+        self._unzipped = _UNPACKED.acquire(self.path, share=not self._once)
         return str(self._unzipped)
+
+    @property
+    def _once(self) -> bool:
+        """The FMU declares ``canBeInstantiatedOnlyOncePerProcess``."""
+        return bool(getattr(self.interface, "canBeInstantiatedOnlyOncePerProcess", False))
 
     def _load(self, fmu_class: type) -> Any:
         """Unpack the archive and load the FMU's library: the ``fmu_class`` object, not
-        instantiated."""
-        self._fmu = fmu_class(guid=self.model_description.guid, unzipDirectory=self._unpack(),
-                              modelIdentifier=self.interface.modelIdentifier,
-                              instanceName=self.name)
-        assert self._unzipped is not None
-        _UNPACKED.keep(self._unzipped)  # the library is loaded now, and stays (see _Unpacked)
+        instantiated.
+
+        The library stays loaded with its folder (:class:`_Unpacked`), marked so before the
+        load: a load that fails after the library was mapped must not leave it mapped from a
+        folder that goes. An FMU that can be instantiated only once per process is the
+        exception: a second live instance is refused, and its library is unloaded with its
+        instance as before, the only way to a fresh one in the same process."""
+        folder = self._unpack()
+        if self._once:
+            _ONCE.enter(self)
+        else:
+            _UNPACKED.keep(Path(folder))
+        try:
+            self._fmu = fmu_class(guid=self.model_description.guid, unzipDirectory=folder,
+                                  modelIdentifier=self.interface.modelIdentifier,
+                                  instanceName=self.name)
+        except BaseException:
+            _ONCE.leave(self)
+            raise
         return self._fmu
 
     def _start_values(self, inputs: bool) -> list[tuple[ModelVariable, Any]]:
@@ -604,7 +626,8 @@ class FmuBase(SubModel):
 
     def terminate(self) -> None:
         """Terminate and free the instance, free saved states, release the unpacked files (the
-        library and its folder stay for later instances, see :class:`_Unpacked`).
+        library and its folder stay for later instances, see :class:`_Unpacked`; an FMU that
+        can be instantiated only once per process is unloaded, see :meth:`_load`).
 
         Every part runs even if an earlier one failed; the first failure is raised at the end.
         """
@@ -626,7 +649,13 @@ class FmuBase(SubModel):
                     with contextlib.suppress(Exception):
                         free(fmu.component, byref(pointer))
             self._spare_states = []
-            if fmu.component is not None:
+            if self._once:  # the instance and the library, as the library object does
+                try:
+                    fmu.freeInstance() if fmu.component is not None else fmu.freeLibrary()
+                except Exception as exc:
+                    first = first or self._error(f"{self.CALL_PREFIX}FreeInstance", exc)
+                _ONCE.leave(self)
+            elif fmu.component is not None:
                 # the instance only: the library stays loaded (``_Unpacked``), where the
                 # library objects' own ``freeInstance`` would unload it too
                 try:
@@ -647,44 +676,86 @@ class _Unpacked:
 
     An FMU's files are read-only to its instances (FMI: the resource location is for reading),
     so instances of one FMU need one copy: a system of ten instances of one FMU unpacked ten
-    times before. A file that changed on disk (size or modification time) gets a fresh folder.
+    times before. Files are told apart by their content (each member's name, CRC and size):
+    the same FMU at another path (an SSP archive unpacked again for every run of a sweep)
+    shares the folder, a file rebuilt in place gets a fresh one.
 
     A folder whose shared library has been loaded (:meth:`keep`) stays, and the library with it,
-    until the process exits; any other goes when the last instance using it is terminated. Why
-    the library is never unloaded: an FMU's library is free to keep state beyond its instances
-    that does not survive being unloaded and loaded again in the same process — most plainly
-    one that embeds the Python interpreter (pythonfmu) and leaves objects in the interpreter
-    that is running cosimstep. The ship plant with its pythonfmu zone
-    (``examples/ship_plant_fmu.toml``), whose run is repeated at a tighter tolerance and so
-    instantiates the FMU again after its first instances were freed and the library unloaded,
-    ended every time with ``free(): corrupted unsorted chunks`` and exit code 134 after writing
-    its results; with the library kept loaded it ends cleanly. A later instance of the same file
-    then also skips the unpacking and the loading.
+    until the process exits; any other goes when the last instance using it is terminated. Why:
+    a library must not be loaded a second time from a second folder, and it cannot always be
+    unloaded in between. pythonfmu's runtime exports C++ symbols of which the loader keeps one
+    per process, which makes ``dlclose`` a no-op for it; a second copy loaded from another
+    folder shares those objects with the first, and both destroy them at exit. The ship plant
+    with its pythonfmu zone (``examples/ship_plant_fmu.toml``), whose run is repeated at a
+    tighter tolerance after the first run had removed the folder, ended in 8 of 10 runs with
+    ``free(): corrupted unsorted chunks`` and exit code 134 after writing its results; with
+    folders kept and shared, in 0 of 12 (docs/reliability.md). A later instance of the same
+    file also skips the unpacking, and the library is already mapped. A folder that vanished
+    meanwhile (a cleaner of the temporary directory) is unpacked again at the same place.
     """
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         # key -> [folder, users, kept: whether its library was loaded]
-        self._folders: dict[tuple[str, int, int], list] = {}
+        self._folders: dict[tuple, list] = {}
+        self._binaries: dict[tuple[int, int], Path] = {}  # (CRC, size) -> the first unpacked
         self._cleanup = False
 
-    def acquire(self, path: Path) -> Path:
+    def acquire(self, path: Path, share: bool = True) -> Path:
+        """The folder of ``path``'s content, unpacked if needed; ``share``: its binaries may be
+        the same files as identical ones unpacked before (:meth:`_share_binaries`)."""
         info = path.stat()
-        key = (str(path.resolve()), info.st_mtime_ns, info.st_size)
+        key = _content(str(path.resolve()), info.st_size, info.st_mtime_ns, info.st_ctime_ns,
+                       info.st_ino)
         with self._lock:
             entry = self._folders.get(key)
             if entry is None:
-                folder = new_folder(path.stem)
-                try:
-                    # sources/ and documentation/ are not needed to run the binary; without
-                    # them the test FMUs unpacked in 1.7 instead of 3.1 ms
-                    fmpy.extract(str(path), unzipdir=str(folder), include=_needed)
-                except BaseException:
-                    shutil.rmtree(folder, ignore_errors=True)
-                    raise
-                entry = self._folders[key] = [folder, 0, False]
+                entry = self._folders[key] = [self._extract(path, new_folder(path.stem)), 0,
+                                              False]
+            elif not entry[0].is_dir():
+                self._extract(path, mark(entry[0]))
+            else:
+                share = False  # unpacked before, and shared then if it could be
+            if share:
+                self._share_binaries(key, entry[0])
             entry[1] += 1
             return entry[0]
+
+    def _share_binaries(self, key: tuple, folder: Path) -> None:
+        """Each binary made the same file as an identical one (same CRC and size) unpacked
+        before. The loader (glibc's) maps a file once per process, telling files apart by device
+        and inode, so FMUs that ship the same runtime — every pythonfmu FMU ships one — run on one
+        copy of it: two copies of pythonfmu's runtime share its process-wide C++ objects and
+        both destroy them at exit (see the class docstring). Where a link cannot be made (another
+        file system, no hard links) the binary stays a copy of its own."""
+        for name, crc, size in key:
+            if not name.startswith("binaries/") or name.endswith("/"):
+                continue
+            mine = folder / name
+            first = self._binaries.get((crc, size))
+            if first is None or not first.is_file():
+                self._binaries[(crc, size)] = mine
+                continue
+            if first == mine:
+                continue
+            link = mine.with_name(mine.name + ".link")
+            try:
+                os.link(first, link)
+                os.replace(link, mine)
+            except OSError:
+                with contextlib.suppress(OSError):
+                    link.unlink()
+
+    @staticmethod
+    def _extract(path: Path, folder: Path) -> Path:
+        try:
+            # sources/ and documentation/ are not needed to run the binary; without them the
+            # test FMUs unpacked in 1.7 instead of 3.1 ms
+            fmpy.extract(str(path), unzipdir=str(folder), include=_needed)
+        except BaseException:
+            shutil.rmtree(folder, ignore_errors=True)
+            raise
+        return folder
 
     def keep(self, folder: Path) -> None:
         """``folder``'s library has been loaded: keep both until the process exits."""
@@ -717,6 +788,48 @@ class _Unpacked:
 
 
 _UNPACKED = _Unpacked()
+
+
+@functools.lru_cache(maxsize=256)
+def _content(path: str, size: int, mtime_ns: int, ctime_ns: int, inode: int) -> tuple:
+    """What tells one FMU file's content from another's: its members' names, CRCs and sizes
+    (read from the archive's directory once per version of the file on disk)."""
+    with zipfile.ZipFile(path) as archive:
+        return tuple(sorted((i.filename, i.CRC, i.file_size) for i in archive.infolist()))
+
+
+class _OncePerProcess:
+    """The live instances of FMUs that declare ``canBeInstantiatedOnlyOncePerProcess``: a
+    second one of the same file is refused with the reason, instead of sharing a library that
+    says it cannot serve two."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._live: dict[tuple, str] = {}  # content key -> the live instance's name
+
+    def enter(self, model: FmuBase) -> None:
+        info = model.path.stat()
+        key = _content(str(model.path.resolve()), info.st_size, info.st_mtime_ns,
+                       info.st_ctime_ns, info.st_ino)
+        with self._lock:
+            other = self._live.get(key)
+            if other is not None:
+                raise model._report(f"it can be instantiated only once per process "
+                                    f"(canBeInstantiatedOnlyOncePerProcess), and instance "
+                                    f"'{other}' is alive: use it once per system, or run the "
+                                    f"systems that need it in separate processes")
+            self._live[key] = model.name
+            model._once_key = key
+
+    def leave(self, model: FmuBase) -> None:
+        key = getattr(model, "_once_key", None)
+        with self._lock:
+            if key is not None and self._live.get(key) == model.name:
+                del self._live[key]
+        model._once_key = None
+
+
+_ONCE = _OncePerProcess()
 
 
 _LOGGING = [False]
