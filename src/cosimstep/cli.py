@@ -410,6 +410,11 @@ def _check_scheme(ctrl: Any, opts: MasterOptions, spec: SystemSpec) -> None:
         problems.append(Problem("coupling", f"coupling '{opts.coupling}' repeats every step "
                                 f"from the saved states, but {', '.join(unable)} cannot save "
                                 "and restore its state", "use --coupling explicit"))
+    from cosimstep.adapters.fmu_base import once_per_process_problems
+
+    problems += [Problem("models", reason, "keep one instance of it, or run the systems that need "
+                         "more in separate processes")
+                 for reason in once_per_process_problems(spec.system.models)]
     if multirate:
         from cosimstep.multirate import refusals
 

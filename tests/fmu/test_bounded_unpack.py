@@ -138,6 +138,18 @@ def test_an_fmu_that_runs_once_per_process_is_refused_twice_and_unloaded(bar_fmu
     again.initialize(0.0)
     again.terminate()
 
+    from click.testing import CliRunner
+
+    from cosimstep.cli import main
+
+    system = tmp_path / "two.toml"  # found before the run: exit 2, the reason and the fix
+    system.write_text(f'until = 0.1\n[models.a]\ntype = "fmu"\npath = "{once.name}"\n'
+                      f'[models.b]\ntype = "fmu"\npath = "{once.name}"\n'
+                      '[controller]\nname = "fixed"\nstep = 0.01\n')
+    res = CliRunner().invoke(main, ["run", str(system), "--no-store"])
+    assert res.exit_code == 2 and "a, b are instances of one FMU" in res.output \
+        and "separate processes" in res.output and "Traceback" not in res.output
+
 
 def test_a_loaded_library_and_its_folder_go_when_the_process_exits(bar_fmus):
     """The library is never unloaded (an FMU's state beyond its instances need not survive

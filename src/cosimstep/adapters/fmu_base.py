@@ -832,6 +832,22 @@ class _OncePerProcess:
 _ONCE = _OncePerProcess()
 
 
+def once_per_process_problems(models: Mapping[str, Any]) -> list[str]:
+    """Why ``models`` (by name) cannot run in one process: several instances of one FMU that
+    declares ``canBeInstantiatedOnlyOncePerProcess`` — found before the run, where
+    :class:`_OncePerProcess` would refuse the second instance when it starts."""
+    groups: dict[tuple, list[str]] = {}
+    for name, model in models.items():
+        if isinstance(model, FmuBase) and model._once:
+            info = model.path.stat()
+            key = _content(str(model.path.resolve()), info.st_size, info.st_mtime_ns,
+                           info.st_ctime_ns, info.st_ino)
+            groups.setdefault(key, []).append(name)
+    return [f"{', '.join(names)} are instances of one FMU that can be instantiated only once "
+            "per process (canBeInstantiatedOnlyOncePerProcess)"
+            for names in groups.values() if len(names) > 1]
+
+
 _LOGGING = [False]
 
 
