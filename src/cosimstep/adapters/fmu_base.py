@@ -651,7 +651,10 @@ class FmuBase(SubModel):
             self._spare_states = []
             if self._once:  # the instance and the library, as the library object does
                 try:
-                    fmu.freeInstance() if fmu.component is not None else fmu.freeLibrary()
+                    if fmu.component is not None:
+                        fmu.freeInstance()
+                    else:
+                        fmu.freeLibrary()
                 except Exception as exc:
                     first = first or self._error(f"{self.CALL_PREFIX}FreeInstance", exc)
                 _ONCE.leave(self)
@@ -704,9 +707,7 @@ class _Unpacked:
     def acquire(self, path: Path, share: bool = True) -> Path:
         """The folder of ``path``'s content, unpacked if needed; ``share``: its binaries may be
         the same files as identical ones unpacked before (:meth:`_share_binaries`)."""
-        info = path.stat()
-        key = _content(str(path.resolve()), info.st_size, info.st_mtime_ns, info.st_ctime_ns,
-                       info.st_ino)
+        key = content_of(path)
         with self._lock:
             entry = self._folders.get(key)
             if entry is None:
@@ -790,6 +791,13 @@ class _Unpacked:
 _UNPACKED = _Unpacked()
 
 
+def content_of(path: Path) -> tuple:
+    """:func:`_content` of the file at ``path`` as it is on disk now."""
+    info = path.stat()
+    return _content(str(path.resolve()), info.st_size, info.st_mtime_ns, info.st_ctime_ns,
+                    info.st_ino)
+
+
 @functools.lru_cache(maxsize=256)
 def _content(path: str, size: int, mtime_ns: int, ctime_ns: int, inode: int) -> tuple:
     """What tells one FMU file's content from another's: its members' names, CRCs and sizes
@@ -808,9 +816,7 @@ class _OncePerProcess:
         self._live: dict[tuple, str] = {}  # content key -> the live instance's name
 
     def enter(self, model: FmuBase) -> None:
-        info = model.path.stat()
-        key = _content(str(model.path.resolve()), info.st_size, info.st_mtime_ns,
-                       info.st_ctime_ns, info.st_ino)
+        key = content_of(model.path)
         with self._lock:
             other = self._live.get(key)
             if other is not None:
@@ -839,10 +845,7 @@ def once_per_process_problems(models: Mapping[str, Any]) -> list[str]:
     groups: dict[tuple, list[str]] = {}
     for name, model in models.items():
         if isinstance(model, FmuBase) and model._once:
-            info = model.path.stat()
-            key = _content(str(model.path.resolve()), info.st_size, info.st_mtime_ns,
-                           info.st_ctime_ns, info.st_ino)
-            groups.setdefault(key, []).append(name)
+            groups.setdefault(content_of(model.path), []).append(name)
     return [f"{', '.join(names)} are instances of one FMU that can be instantiated only once "
             "per process (canBeInstantiatedOnlyOncePerProcess)"
             for names in groups.values() if len(names) > 1]
