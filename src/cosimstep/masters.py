@@ -12,7 +12,6 @@ is what rejecting and re-running a step needs.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
 import threading
@@ -274,6 +273,19 @@ class _Watchdog:
         return value
 
 
+def _untouched(gains: list[np.ndarray], offsets: list[np.ndarray]) -> list[bool]:
+    """Per model: whether every input is its source's value unchanged (gain 1, offset 0; a
+    model without inputs too), judged on all models' tables at once — one NumPy call per
+    model cost more than the rest of a large system's set-up."""
+    if not gains:
+        return []
+    bounds = np.cumsum([0, *map(len, gains)])
+    changed = np.flatnonzero((np.concatenate(gains) != 1.0) | (np.concatenate(offsets) != 0.0))
+    untouched = np.ones(len(gains), dtype=bool)
+    untouched[np.searchsorted(bounds, changed, side="right") - 1] = False
+    return untouched.tolist()
+
+
 def _columns(n: int, sources: list[list[int]]) -> np.ndarray:
     """A mask of ``n`` columns, true for those in any of ``sources``."""
     mask = np.zeros(n, dtype=bool)
@@ -304,8 +316,7 @@ class Master:
             self.sequence += [k for k in range(n) if k not in self.sequence]
         self._deriv_order = [m.capabilities.max_input_derivative_order for m in system.models]
         # a connection without gain, offset or unit change passes values on untouched
-        self._identity = [a.tolist() == [1.0] * len(a) and b.tolist() == [0.0] * len(b)
-                          for a, b in zip(system.a, system.b)]
+        self._identity = _untouched(system.a, system.b)
         self._watch: _Watchdog | None = None  # set while a watched run is under way
         self._dy0: np.ndarray | None = None
         self.correct_start = False  # set by a fixed-step run: see :meth:`step`
@@ -390,8 +401,12 @@ class Master:
         """Terminate every sub-model but those named in ``spare`` (their calls hung)."""
         for name, model in zip(self.system.names, self.system.models):
             if name not in spare:
-                with contextlib.suppress(Exception):
+                # a model that fails to end frees what it can; not contextlib.suppress, whose
+                # object per model cost more than the call in a system of thousands
+                try:  # noqa: SIM105
                     model.terminate()
+                except Exception:
+                    pass
 
     def save(self) -> list[Any]:
         return [m.save_state() for m in self.system.models]
@@ -587,8 +602,7 @@ class Master:
         if self.options.extrapolation != 0 or self.options.name not in ("jacobi",
                                                                          "gauss-seidel"):
             return None
-        if self.iteration is not None or any(m.capabilities.has_direct_feedthrough
-                                             for m in self.system.models):
+        if self.iteration is not None or any(self._instant_model):
             return None
         return _HeldKernel(self)
 
@@ -608,8 +622,7 @@ class Master:
         if self.options.extrapolation == 0 or self.options.name not in ("jacobi",
                                                                          "gauss-seidel"):
             return None
-        if self.iteration is not None or any(m.capabilities.has_direct_feedthrough
-                                             for m in self.system.models):
+        if self.iteration is not None or any(self._instant_model):
             return None
         return _ExtrapolatingKernel(self)
 
@@ -818,9 +831,14 @@ class _LeanKernel:
 def _instant_outputs(system: CompiledSystem) -> tuple[np.ndarray, list[bool]]:
     """Which outputs a model computes from its inputs at the same instant (a feedthrough entry
     that names inputs), as a column mask, and which models have any."""
-    mask = np.array([bool(m.capabilities.feedthrough.get(port.name))
-                     for m in system.models for port in m.outputs], dtype=bool)
-    return mask, [m.capabilities.has_direct_feedthrough for m in system.models]
+    mask = np.zeros(system.n_outputs, dtype=bool)
+    models = []
+    for m, columns in zip(system.models, system.output_slices):
+        feedthrough = m.capabilities.feedthrough
+        models.append(bool(feedthrough) and any(feedthrough.values()))
+        if models[-1]:  # (most models have none: their ports need no look)
+            mask[columns] = [bool(feedthrough.get(port.name)) for port in m.outputs]
+    return mask, models
 
 
 def _start_facts(system: CompiledSystem) -> tuple[bool, bool]:
@@ -872,20 +890,22 @@ class _HeldKernel(_LeanKernel):
         # and NumPy's calls on arrays of one or two elements cost more than the lists'
         owner = system.owners
         for k in master.sequence:
+            src = system.src[k].tolist()
             # 1 where model k reads a fresh value (a Gauss–Seidel source stepped before it)
-            fresh = [int(gauss_seidel and rank[owner[j]] < rank[k])
-                     for j in system.src[k].tolist()]
-            self.plan.append(self._entry(k, fresh))
+            fresh = [int(rank[owner[j]] < rank[k]) for j in src] if gauss_seidel \
+                else [0] * len(src)
+            self.plan.append(self._entry(k, src, fresh))
 
-    def _entry(self, k: int, fresh: list[int]) -> tuple:
-        """Model ``k``'s entry of :attr:`plan`; ``fresh``: 1 for each input read from row
-        ``n + 1``."""
+    def _entry(self, k: int, src: list[int], fresh: list[int]) -> tuple:
+        """Model ``k``'s entry of :attr:`plan`; ``src``: its inputs' columns, ``fresh``: 1
+        for each input read from row ``n + 1``."""
         master, system, m = self.master, self.master.system, self.m
         model = system.models[k]
-        src = system.src[k].tolist()
         out = system.output_slices[k]
-        raw = getattr(model, "_direct_io", lambda: None)()
-        contiguous = bool(src) and src == list(range(src[0], src[0] + len(src)))
+        direct = getattr(model, "_direct_io", None)
+        raw = direct() if direct is not None else None
+        contiguous = bool(src) and (len(src) == 1
+                                    or src == list(range(src[0], src[0] + len(src))))
         in_offset = None  # where the inputs start in the table from row n, when they are
         buffer = None     # one run of columns passed on unchanged (no gather needed)
         if contiguous and len(set(fresh)) == 1:

@@ -283,6 +283,9 @@ class Multirate:
             where, which = groups.setdefault(owner, ([], []))
             where.append(i)
             which.append(col)
+        if len(groups) == 1:  # one owner: its columns are these, in this order
+            (owner, (_, which)), = groups.items()
+            return self._owned(owner, which, at)
         extrapolated = False
         for owner, (where, which) in groups.items():
             values, beyond = self._owned(owner, which, at)
@@ -305,6 +308,10 @@ class Multirate:
         tr = self.tracks[owner]
         t0 = float(at[0])
         lo, hi = self._segment_bounds(t0 + 1e-12 * max(1.0, abs(t0)), owner)
+        if not tr.discrete and tr.index not in self.changing:  # nothing held: every column
+            window = self._window(tr, at, lo, hi, stencil)     # read alike, as below
+            if window is not None:
+                return self._fill(tr, cols, at, *window), window[2]
         out = np.empty((len(at), len(cols)))
         changing = self.changing.get(tr.index, ())
         held = [c for c, col in enumerate(cols) if tr.discrete or col in changing]
@@ -391,14 +398,18 @@ class Multirate:
         and whether any were extrapolated (an input with gain 0 is its offset)."""
         system = self.system
         a, b = system.a[k], system.b[k]
+        sources = system.src[k].tolist()
+        live = [i for i, gain in enumerate(a.tolist()) if gain != 0.0]
+        if live and len(live) == len(sources):  # every input read: the same products and
+            values, extrapolated = self._signals(sources, at)  # sums as below, at once
+            return a * values + b, extrapolated
         out = np.empty((len(at), len(a)))
-        live = [i for i in range(len(a)) if a[i] != 0.0]
         for i in range(len(a)):
             if a[i] == 0.0:
                 out[:, i] = b[i]
         if not live:
             return out, False
-        values, extrapolated = self._signals([int(system.src[k][i]) for i in live], at)
+        values, extrapolated = self._signals([sources[i] for i in live], at)
         for c, i in enumerate(live):
             out[:, i] = a[i] * values[:, c] + b[i]
         return out, extrapolated

@@ -133,6 +133,7 @@ class Synchronous(Scheme):
         self.fired: list[Event] = []
         self.max_events = MAX_EVENTS
         discrete = [k for k, m in enumerate(compiled.models) if isinstance(m, DiscreteEventModel)]
+        self._event_models = discrete  # (an ABC's isinstance, asked once per model)
         self.state_events = [k for k in discrete if type(compiled.models[k]).indicator
                              is not DiscreteEventModel.indicator]
         # continuous sub-models with discrete outputs: a change of one is an event too (the
@@ -155,8 +156,7 @@ class Synchronous(Scheme):
         return [self.runner]
 
     def resumable(self) -> str | None:
-        if self.state_events or self.changing or any(
-                isinstance(m, DiscreteEventModel) for m in self.compiled.models):
+        if self.state_events or self.changing or self._event_models:
             return "runs with discrete events or discrete outputs cannot be resumed yet"
         return None
 
@@ -189,8 +189,7 @@ class Synchronous(Scheme):
 
             policy = self.controller.policy  # type: ignore[attr-defined]
             self.loop.companion = Companion(self.runner, lambda y: policy.scale(y) / policy.tol)
-        discrete = [_EventActor(self, k) for k, m in enumerate(self.compiled.models)
-                    if isinstance(m, DiscreteEventModel)]
+        discrete = [_EventActor(self, k) for k in self._event_models]
         if discrete:
             self.loop.start()  # the event models tell their first time once initialized
         return [self.loop, *discrete]
@@ -293,9 +292,12 @@ class Synchronous(Scheme):
         times, values, steps = self.loop.results()
         rejected = self.loop.rejected
         accepted = len(steps) + self.offset  # a resumed run's steps before its checkpoint too
-        models = {n: ModelStats(int(c), accepted, rejected, 0, steps.copy(), times,
-                                values[:, compiled.output_slices[k]])
-                  for k, (n, c) in enumerate(zip(compiled.names, runner.calls))}
+        # every sub-model took the run's steps: one copy for all of them, as their times and
+        # values are views of the run's (a system of thousands of models made a copy each)
+        shared = steps.copy()
+        models = {n: ModelStats(c, accepted, rejected, 0, shared, times, values[:, columns])
+                  for n, c, columns in zip(compiled.names, runner.calls.tolist(),
+                                           compiled.output_slices)}
         estimate = getattr(self.controller, "error_estimate", None)
         companion = getattr(self.loop, "companion", None)
         extra = 0
@@ -308,8 +310,8 @@ class Synchronous(Scheme):
                 warnings.warn(f"estimate='richardson': {caveat}", stacklevel=2)
         return Outcome(
             float(self.loop.t), times, values, steps, models,
-            {n: int(c) for n, c in zip(compiled.names, runner.calls)},
-            {n: float(s) for n, s in zip(compiled.names, runner.time_in_models)},
+            dict(zip(compiled.names, runner.calls.tolist())),
+            dict(zip(compiled.names, runner.time_in_models.tolist())),
             accepted, rejected, estimate, list(self.fired), extra)
 
     def error(self, reference: Reference, out: Outcome,

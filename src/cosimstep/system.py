@@ -220,14 +220,17 @@ class System:
                                     "connection"))
         else:
             fed[key] = c
-        coded = {out_port.kind, in_port.kind} & set(_CODED)
+        out_kind, in_kind = out_port.kind, in_port.kind
+        coded = out_kind in _CODED or in_kind in _CODED
         try:
             if not coded:  # text and bytes have no unit; their kinds are checked below
                 conversion(out_port.unit, in_port.unit)
         except UnitError as exc:
             problems.append(Problem(c.label, f"unit mismatch: {exc}", "connect ports of "
                                     "compatible units or fix the unit declarations"))
-        mismatch = _kind_mismatch(out_port.kind, in_port.kind, c)
+        if in_kind == "real" and not coded:  # any number feeds a real input
+            return problems
+        mismatch = _kind_mismatch(out_kind, in_kind, c)
         if mismatch and coded:
             problems.append(Problem(c.label, mismatch, f"connect a {in_port.kind} output, "
                                     "without gain, offset or rounding"))
@@ -349,33 +352,34 @@ class System:
             raise ConfigurationError(problems)
         names = list(self.models)
         models = [self.models[n] for n in names]
-        slices, out_names, out_units, owners, offset = [], [], [], [], 0
-        global_index: dict[str, int] = {}
-        for name, model in zip(names, models):
-            slices.append(slice(offset, offset + len(model.outputs)))
-            for port in model.outputs:
-                global_index[f"{name}.{port.name}"] = offset
-                out_names.append(f"{name}.{port.name}")
-                out_units.append(port.unit)
-                owners.append(len(slices) - 1)
-                offset += 1
+        # the port maps hold every address once, models and ports in declaration order (a
+        # port declared twice was refused above), so the columns are their order
+        out_names = list(ports[0])
+        out_units = [port.unit for port in ports[0].values()]
+        global_index = {address: j for j, address in enumerate(out_names)}
+        slices, owners, offset = [], [], 0
+        for k, model in enumerate(models):
+            count = len(model.outputs)
+            slices.append(slice(offset, offset + count))
+            owners.extend([k] * count)
+            offset += count
         by_target = {c.target: c for c in links}
         # every model's input table as a view into one array for all (a system of thousands of
         # models would otherwise spend most of its compile allocating arrays of one element)
         s_all, a_all, b_all, bounds = [], [], [], [0]
-        for name, model in zip(names, models):
-            for port in model.inputs:
-                c = by_target.get(f"{name}.{port.name}")
-                if c is None:  # validated: unconnected inputs have a start value
-                    s_all.append(0)
-                    a_all.append(0.0)
-                    b_all.append(float(port.start))
-                    continue
-                scale, shift = conversion(ports[0][c.source].unit, port.unit)
-                s_all.append(global_index[c.source])
-                a_all.append(c.gain * scale)
-                b_all.append(c.gain * shift + c.offset)
-            bounds.append(len(s_all))
+        for address, port in ports[1].items():
+            c = by_target.get(address)
+            if c is None:  # validated: unconnected inputs have a start value
+                s_all.append(0)
+                a_all.append(0.0)
+                b_all.append(float(port.start))
+                continue
+            scale, shift = conversion(ports[0][c.source].unit, port.unit)
+            s_all.append(global_index[c.source])
+            a_all.append(c.gain * scale)
+            b_all.append(c.gain * shift + c.offset)
+        for model in models:
+            bounds.append(bounds[-1] + len(model.inputs))
         tables = (np.array(s_all, dtype=int), np.array(a_all, dtype=float),
                   np.array(b_all, dtype=float))
         src, a, b = ([t[i:j] for i, j in itertools.pairwise(bounds)] for t in tables)
