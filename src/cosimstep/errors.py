@@ -71,3 +71,21 @@ class EndOfSimulation(Exception):
 
 class StepSizeError(RuntimeError):
     """A step controller cannot continue (for example the step fell below its minimum)."""
+
+
+def still_failing(failure: tuple[SubModelError, float] | None, t: float,
+                  hmin: float) -> SubModelError | None:
+    """The error to end a run with when its step fell below ``hmin`` at ``t`` short of the
+    end of the step a sub-model last failed on (``failure``: that error and that end), else
+    ``None``.
+
+    After a failed trial the steps creep up on the time the sub-model fails at; there, at
+    steps of ~1e-10 s, a step's share of ``tol`` falls below round-off, the last rejection is
+    the error estimate's, and ``hmin`` was reached on a message about an error of 1e-16 while
+    the sub-model's own exception was lost (a Python sub-model raising past t = 1000 s under
+    ``pc``). The failure, not the estimate, stopped the run."""
+    if failure is None or not t < failure[1]:
+        return None
+    exc = failure[0]
+    return SubModelError(exc.model, exc.t, f"{exc.reason} (still after retrying with steps "
+                         f"down to below hmin = {hmin:.3g} s, at t = {t:.12g})", exc.h)

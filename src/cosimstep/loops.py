@@ -20,7 +20,7 @@ import numpy as np
 from cosimstep.checkpoint import Checkpoints, restore
 from cosimstep.controllers import Controller
 from cosimstep.controllers.base import Attempt
-from cosimstep.errors import SubModelError
+from cosimstep.errors import StepSizeError, SubModelError, still_failing
 from cosimstep.kernel import Actor, Budget
 from cosimstep.masters import Master
 from cosimstep.store import Checkpoint, Store
@@ -144,6 +144,8 @@ class ControllerLoop(_Loop):
         self.steps: list[float] = []
         self.rejected = 0
         self.failed_trials = 0  # rejected because a sub-model failed on the trial step
+        # the last such failure and the end of the step it failed on (see _failed_trial)
+        self._failure: tuple[SubModelError, float] | None = None
         self._clock: _Clock | None = None  # set by the first turn
         # state events (see _crossing_inside): watch(row) is the largest indicator of the
         # state-event sub-models (an event when it reaches 0 from below), fire(t) fires them
@@ -197,6 +199,13 @@ class ControllerLoop(_Loop):
             attempt = controller.attempt(ctx, t, h)
         except SubModelError as exc:
             attempt = self._failed_trial(exc, t, h)
+        except StepSizeError:
+            policy = getattr(controller, "policy", None)
+            failure = self._failure
+            error = still_failing(failure, t, getattr(policy, "hmin", math.nan))
+            if error is not None and failure is not None:
+                raise error from failure[0]
+            raise
         if sink is not None:
             sink.add_attempt(None, t, h, attempt.accepted, attempt.error)
         self._h = attempt.h_next
@@ -377,6 +386,7 @@ class ControllerLoop(_Loop):
                                 exc.h) from exc
         self.ctx.restore(token)
         self.failed_trials += 1
+        self._failure = (exc, t + h)
         return Attempt(np.empty(0), False, h_next, math.inf)
 
     def finish(self) -> None:

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from cosimstep.controllers.base import StepPolicy
-from cosimstep.errors import SubModelError
+from cosimstep.errors import StepSizeError, SubModelError, still_failing
 from cosimstep.events import MAX_EVENTS, DiscreteEventModel, Event
 from cosimstep.extrapolation import (
     evaluate,
@@ -121,6 +121,8 @@ class Track:
     corrections: int = 0
     verified: int = 0
     failed_trials: int = 0  # rejections because the sub-model failed on the trial step
+    # the last such failure and the end of the step it failed on (errors.still_failing)
+    failure: tuple[SubModelError, float] | None = None
     rollbacks: int = 0  # times it was rolled back to re-run with a partner's corrected values
     missed_rollbacks: int = 0  # rollbacks wanted with no saved state to go back to
     replaced: int = 0  # accepted steps later dropped (rollback) or re-run in more pieces, net
@@ -467,7 +469,7 @@ class Multirate:
         y = self._caller._outputs(k, t, h)  # one float per declared output, or an error
         tr.time_in_model += time.perf_counter() - start
         if not np.all(np.isfinite(y)):
-            bad = [model.outputs[i].name for i in np.flatnonzero(~np.isfinite(y))]
+            bad = [f"{tr.name}.{model.outputs[i].name}" for i in np.flatnonzero(~np.isfinite(y))]
             raise SubModelError(tr.name, t, f"returned non-finite output(s) {', '.join(bad)}", h)
         return y
 
@@ -984,7 +986,13 @@ class Multirate:
             if self.on_attempt is not None:
                 self.on_attempt(tr.name, t, h, False)
             self._guard(k, t, model.restore_state, token)
-            pol.check(t, h, verdict.h_next, verdict.why)
+            try:
+                pol.check(t, h, verdict.h_next, verdict.why)
+            except StepSizeError:
+                error = still_failing(tr.failure, t, pol.hmin)
+                if error is not None and tr.failure is not None:
+                    raise error from tr.failure[0]
+                raise
             tr.h = verdict.h_next
 
     def _meet(self, k: int, t: float, h: float) -> float:
@@ -1238,6 +1246,7 @@ class Multirate:
                                 exc.h) from exc
         tr.rejected += 1
         tr.failed_trials += 1
+        tr.failure = (exc, t + h)
         if self.on_attempt is not None:
             self.on_attempt(tr.name, t, h, False)
         self._guard(tr.index, t, self.system.models[tr.index].restore_state, token)

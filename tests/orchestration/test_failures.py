@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
 import pytest
 
-from cosimstep import Fixed, MasterOptions, SubModelError, System, read_run, simulate
+from cosimstep import (
+    Capabilities,
+    Fixed,
+    MasterOptions,
+    Port,
+    SubModel,
+    SubModelError,
+    System,
+    read_run,
+    simulate,
+)
 from helpers import Clock, Integrator
 
 
@@ -152,3 +163,59 @@ def test_a_failure_that_persists_down_to_hmin_ends_the_run(examples):
     assert "internal solver gave up" in r.message and "hmin = 1e-06" in r.message
     assert 1.0 <= r.t_end < 1.05  # the last accepted step started just before t = 1
     assert r.times[-1] == r.t_end and r.error is None
+
+
+
+class _Room(SubModel):
+    """A room cooling towards 5 °C (time constant 4000 s, exact steps) that fails on every
+    step past ``fail_at``: it raises, or its temperature becomes NaN."""
+
+    inputs = (Port("on", "1", 0.0),)
+    outputs = (Port("T", "degC", 15.0),)
+    capabilities = Capabilities(can_save_state=True)
+
+    def __init__(self, fail_at: float, mode: str) -> None:
+        self.fail_at, self.mode = fail_at, mode
+
+    def initialize(self, t0: float) -> None:
+        self.T, self.on = 15.0, 0.0
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        self.on = float(values[0])
+
+    def do_step(self, t: float, h: float) -> None:
+        if t + h > self.fail_at:
+            if self.mode == "raise":
+                raise RuntimeError("solver diverged")
+            self.T = math.nan
+            return
+        settled = 5.0 + 40.0 * self.on
+        self.T = settled + (self.T - settled) * math.exp(-h / 4000.0)
+
+    def get_outputs(self) -> np.ndarray:
+        return np.array([self.T])
+
+    def save_state(self) -> tuple[float, float]:
+        return self.T, self.on
+
+    def restore_state(self, token: tuple[float, float]) -> None:
+        self.T, self.on = token
+
+
+@pytest.mark.parametrize("master", ["gauss-seidel", "multirate"])
+@pytest.mark.parametrize("mode, words", [("raise", "RuntimeError: solver diverged"),
+                                         ("nan", "non-finite output(s) room.T")])
+def test_a_failure_crept_up_on_is_named_not_the_estimate(master, mode, words):
+    """A sub-model that fails on every step past ``fail_at``: the retried steps creep up on
+    it until, at ~1e-10 s, a step's share of tol is below round-off and the estimate rejects
+    too. The run ends on the sub-model's failure; before, at ``fail_at`` = 1000 s it ended
+    on "step size fell below hmin" about an error of 5e-16, the exception lost."""
+    from cosimstep import make_controller
+
+    for fail_at in (100.0, 1000.0, 1800.0):
+        s = System().add("room", _Room(fail_at, mode))
+        r = simulate(s, 3600.0, make_controller("pc", None, 1e-4), MasterOptions(master, 2))
+        assert r.status == "failed"
+        assert words in r.message and "'room'" in r.message, (fail_at, r.message)
+        assert "hmin = 1e-10 s" in r.message
+        assert r.t_end == pytest.approx(fail_at, abs=1e-6)
