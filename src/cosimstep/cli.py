@@ -30,6 +30,7 @@ from cosimstep.errors import ConfigurationError, Problem
 from cosimstep.iteration import COUPLINGS
 from cosimstep.masters import COUPLING_INPUTS, MASTERS, RESYNC, MasterOptions, trapezoidal_refusal
 from cosimstep.simulate import SimulationResult, simulate
+from cosimstep.writable import output_problems
 
 EXIT_FAILED, EXIT_CONFIG = 1, 2
 
@@ -174,6 +175,8 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
                            "leave out one of them"))
     bad += _checkpoint_problems(checkpoint_every, checkpoint_steps, resume_db, run_id, out,
                                 no_store, output_interval)
+    if out is not None and not no_store and resume_db is None:
+        bad += output_problems("--out", out, store=True)
     if bad:
         _config_exit(ConfigurationError(bad, "the command line"))
     overrides = {"parameters": _values(params, "--param"), "start": _values(starts, "--start")}
@@ -321,6 +324,11 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
     _check_scheme(ctrl, opts, spec)
     _check_estimate(estimate, ctrl, spec, opts)
     db = (out or f"{spec.name}.db") if store else None
+    if db is not None and out is None:  # the default store, named after the system
+        problems = output_problems("the results store", db, store=True)
+        if problems:
+            _config_exit(ConfigurationError(problems, "the command line (name one with --out, "
+                                            "or run with --no-store)"))
     try:
         return simulate(spec.system, spec.until, ctrl, opts, reference=spec.reference,
                         store=db, name=spec.name,
@@ -535,6 +543,12 @@ def sweep_command(system: str, params: tuple[str, ...], design_kind: str, sample
     """
     from cosimstep.sweep import sweep
 
+    bad = output_problems("--out", out, store=True)
+    if keep == "traces" and not bad:
+        bad = output_problems("--keep traces", Path(out).with_name(Path(out).stem + "_traces"),
+                              folder=True)
+    if bad:
+        _config_exit(ConfigurationError(bad, "the command line"))
     try:
         frame = sweep(system, list(params), design_kind=design_kind, samples=samples,
                       seed=seed, out=out, workers=workers, scheduler=scheduler,
@@ -571,10 +585,11 @@ def plot_sweep_command(db: str, x: str | None, work_precision: bool, y: str | No
     from cosimstep.plotting import plot_sweep, plot_work_precision
     from cosimstep.sweep import SweepTable
 
+    bad = output_problems("-o", output)
     if not Path(db).is_file():
-        _config_exit(ConfigurationError([Problem("DB", f"no file {db}",
-                                                 "give the --out of a cosimstep sweep")],
-                                        "the command line"))
+        bad.append(Problem("DB", f"no file {db}", "give the --out of a cosimstep sweep"))
+    if bad:
+        _config_exit(ConfigurationError(bad, "the command line"))
     table = SweepTable(db)
     try:
         frame = table.frame()
@@ -624,10 +639,12 @@ def plot(db: str, output: str, run_id: int | None) -> None:
 
     formats = _figure_formats()
     suffix = Path(output).suffix.lower().lstrip(".")
+    bad = output_problems("-o", output)
     if suffix not in formats:
-        _config_exit(ConfigurationError(
-            [Problem("-o", f"'{output}' is not a figure format matplotlib writes",
-                     f"end it in one of: .{', .'.join(sorted(formats))}")], "the command line"))
+        bad.append(Problem("-o", f"'{output}' is not a figure format matplotlib writes",
+                           f"end it in one of: .{', .'.join(sorted(formats))}"))
+    if bad:
+        _config_exit(ConfigurationError(bad, "the command line"))
     try:
         stored = read_run(db, run_id)
     except LookupError as exc:
@@ -653,7 +670,7 @@ def results(db: str, output: str, run_id: int | None, variables: str | None) -> 
     from cosimstep.results import FORMATS, write
     from cosimstep.store import read_run
 
-    problems = []
+    problems = output_problems("-o", output)
     if Path(output).suffix.lower() not in FORMATS:
         problems.append(Problem("-o", f"'{output}': unknown format",
                                 f"end it in one of {', '.join(FORMATS)}"))
@@ -793,6 +810,9 @@ def export(kind: str, output: str, params: tuple[str, ...], starts: tuple[str, .
                 sys.exit(EXIT_CONFIG)
         return out
 
+    bad = output_problems("-o", output, folder=Path(output).is_dir())
+    if bad:
+        _config_exit(ConfigurationError(bad, "the command line"))
     try:
         path = export_fmu(kind, output, numbers(params, "param"), numbers(starts, "start"))
     except ValueError as exc:

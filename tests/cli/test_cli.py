@@ -424,3 +424,30 @@ def test_controllers_that_pass_options_on_load_with_them(tmp_path):
             f'[controller]\n{table}')
         res = CliRunner().invoke(main, ["validate", str(tmp_path / "c.toml")])
         assert res.exit_code == 0 and "ok —" in res.output, res.output
+
+
+def test_an_output_path_that_cannot_be_written_is_refused_before_any_work(examples, tmp_path):
+    """A file where a folder must be, or an existing file that is no results store: exit 2
+    naming the option, every command alike, and the user's file untouched (these ended in
+    an SQLite or OS traceback, exit 1; sweep exited 0 with nothing run)."""
+    system = str(examples / "double_pendulum_slow.toml")
+    mine = tmp_path / "notes.txt"
+    mine.write_text("keep me")
+    db = tmp_path / "r.db"
+    assert CliRunner().invoke(main, ["run", system, "--until", "0.1", "--out", str(db)]) \
+        .exit_code == 0
+    cases = [
+        (["run", system, "--until", "0.1", "--out", str(mine / "x.db")], "--out", "not a folder"),
+        (["run", system, "--until", "0.1", "--out", str(mine)], "--out", "not a results store"),
+        (["sweep", system, "--param", "l2=1,2", "--out", str(mine)], "--out",
+         "not a results store"),
+        (["results", str(db), "-o", str(mine / "x.csv")], "-o", "not a folder"),
+        (["plot", str(db), "-o", str(mine / "x.png")], "-o", "not a folder"),
+        (["export", "pendulum_bar", "-o", str(mine / "e.fmu")], "-o", "not a folder"),
+    ]
+    for args, option, words in cases:
+        res = CliRunner().invoke(main, args)
+        assert res.exit_code == 2, (args, res.output)
+        assert f"{option}:" in res.output and words in res.output, res.output
+        assert "Traceback" not in res.output
+    assert mine.read_text() == "keep me"
