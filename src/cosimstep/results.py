@@ -3,7 +3,10 @@
 ``cosimstep results DB -o OUT.csv|.parquet|.mat [--run ID] [--variables a,b]``. CSV needs
 nothing beyond Python; Parquet goes through pandas and pyarrow (``pip install
 "cosimstep[parquet]"``); ``.mat`` through SciPy (``t`` and one array per output, names made
-MATLAB-safe: ``bar1.theta`` becomes ``bar1_theta``).
+MATLAB-safe: ``bar1.theta`` becomes ``bar1_theta``). String and Binary ports are written as
+their values, as :meth:`~cosimstep.store.StoredRun.to_pandas` reads them, not as the codes the
+store keeps (:mod:`cosimstep.symbols`): text as it is (CSV: bytes in hexadecimal; MATLAB: a cell
+array).
 """
 
 from __future__ import annotations
@@ -12,10 +15,12 @@ import csv
 import re
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from cosimstep.store import StoredRun
+from cosimstep.symbols import TEXT_UNITS
 
 FORMATS = (".csv", ".parquet", ".mat")
 
@@ -40,23 +45,46 @@ def write(run: StoredRun, path: str | Path, variables: Sequence[str] | None = No
     if suffix not in FORMATS:
         raise ValueError(f"'{path}': unknown format; end the name in one of {', '.join(FORMATS)}")
     names, values = select(run, variables)
+    columns: list[Any] = [values[:, i] for i in range(len(names))]
+    for i, name in enumerate(names):  # String and Binary ports: their values, not the codes
+        if run.units[run.names.index(name)] in TEXT_UNITS:
+            columns[i] = [run.symbols[int(c)] for c in values[:, i].tolist()]
     path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".csv":
+        cells = [[_cell(v) for v in c] if isinstance(c, list) else list(map(repr, c.tolist()))
+                 for c in columns]
         with path.open("w", newline="") as f:
             out = csv.writer(f)
             out.writerow(["t", *names])
-            out.writerows([repr(float(t)), *map(repr, row.tolist())]
-                          for t, row in zip(run.times, values))
+            out.writerows([repr(float(t)), *row]
+                          for t, row in zip(run.times, zip(*cells, strict=True)))
     elif suffix == ".parquet":
         import pandas as pd  # optional: cosimstep[parquet]
 
-        frame = pd.DataFrame(values, index=pd.Index(run.times, name="t"), columns=names)
+        frame = pd.DataFrame(dict(zip(names, columns, strict=True)),
+                             index=pd.Index(run.times, name="t"))
         frame.to_parquet(path)
     else:
         from scipy.io import savemat
 
-        savemat(path, {"t": run.times, **{_matlab(n): values[:, i] for i, n in enumerate(names)}})
+        savemat(path, {"t": run.times, **{_matlab(n): _matlab_column(c)
+                                          for n, c in zip(names, columns, strict=True)}})
     return path
+
+
+def _cell(value: str | bytes) -> str:
+    """A String value as it is, a Binary one in hexadecimal (CSV holds text)."""
+    return value.hex() if isinstance(value, bytes) else value
+
+
+def _matlab_column(column: Any) -> Any:
+    """Numbers as a vector; text as a cell array of strings, bytes as one of uint8 vectors."""
+    if not isinstance(column, list):
+        return column
+    cells = np.empty(len(column), dtype=object)
+    cells[:] = [np.frombuffer(v, dtype=np.uint8) if isinstance(v, bytes) else v
+                for v in column]
+    return cells
 
 
 def _matlab(name: str) -> str:

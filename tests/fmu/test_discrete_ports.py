@@ -224,6 +224,22 @@ def test_strings_are_stored_and_read_back(fmus: dict[str, Path], tmp_path: Path)
     assert list(result.to_pandas()["ec.s_out"]) == result.text("ec.s_out")
     with pytest.raises(ValueError, match="not a String or Binary output"):
         result.text("st.counter")
+    # the exported files hold the words too, not the codes the store keeps
+    import csv
+
+    import pandas as pd
+    from scipy.io import loadmat
+
+    from cosimstep.results import write
+
+    with write(stored, tmp_path / "w.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [r["st.word"] for r in rows] == stored.text("st.word")
+    assert [float(r["st.counter"]) for r in rows] == frame["st.counter"].tolist()
+    parquet = pd.read_parquet(write(stored, tmp_path / "w.parquet"))
+    assert parquet["st.word"].tolist() == stored.text("st.word")
+    mat = loadmat(write(stored, tmp_path / "w.mat"))
+    assert [str(w[0]) for w in mat["st_word"].ravel()] == stored.text("st.word")
 
 
 def test_string_codes_are_the_same_in_every_process() -> None:
