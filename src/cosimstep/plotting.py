@@ -197,8 +197,12 @@ SUMMARY = ("status", "message", "calls_total", "steps", "error", "error_estimate
 
 
 def _swept(frame: Any) -> list[str]:
-    """The swept names of a sweep's DataFrame: the columns before its summary's."""
-    return [c for c in frame.columns if c not in SUMMARY and not c.startswith("calls.")]
+    """The swept names of a sweep's DataFrame (:meth:`~cosimstep.sweep.SweepTable.frame`
+    lists them; a frame from elsewhere: its columns that are no summary's)."""
+    if "swept" in frame.attrs:
+        return [c for c in frame.attrs["swept"] if c in frame.columns]
+    return [c for c in frame.columns if c not in SUMMARY
+            and not c.startswith(("calls.", "min.", "max.")) and c not in ("rmse", "step_min")]
 
 
 def plot_work_precision(frame: Any, path: str | Path) -> Path:
@@ -212,7 +216,12 @@ def plot_work_precision(frame: Any, path: str | Path) -> Path:
     ok = frame[(frame["status"] == "ok") & frame["error"].notna() & (frame["error"] > 0)]
     fig, ax = plt.subplots(figsize=(7, 5), constrained_layout=True)
     swept = [c for c in _swept(frame) if c in ("tol", "step")]
-    for label, rows in ok.groupby("options"):
+    # one line per run options and per value of every other swept name (a sweep of tol and a
+    # parameter: one curve per parameter value, not one zig-zag through them all)
+    others = [c for c in _swept(frame) if c not in ("tol", "step")]
+    for key, rows in ok.groupby(["options", *others]):
+        options, *values = key
+        label = ", ".join([str(options), *(f"{n} = {v:g}" for n, v in zip(others, values))])
         rows = rows.sort_values("error")
         ax.loglog(rows["error"], rows["calls_total"], "o-", label=label)
         for _, row in rows.iterrows():

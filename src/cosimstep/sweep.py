@@ -294,7 +294,7 @@ class SweepTable:
         ``calls.NAME`` are the kept run's), steps, error, rmse, error_estimate, step_min,
         wall_s, store, the sweep's run options as a label (``options``: runs of sweeps with
         other options share a file), and each output's extremes over the run (``min.NAME``,
-        ``max.NAME``)."""
+        ``max.NAME``). ``frame.attrs["swept"]`` lists the swept names."""
         import pandas as pd
 
         rows = {r[0]: r for r in self._db.execute(
@@ -302,13 +302,14 @@ class SweepTable:
             "error_estimate, wall_s, store, options_json, rmse, step_min, extremes_json "
             "FROM sweep_run")}
         order = list(keys) if keys is not None else sorted(rows)
-        records = []
+        records, swept = [], {}
         for key in order:
             if key not in rows:
                 continue
             _, point, status, message, calls, total, steps, error, estimate, wall, store, \
                 options, rmse, smallest, ranges = rows[key]
             record = dict(json.loads(point))
+            swept.update(dict.fromkeys(record))
             record.update(status=status, message=message)
             record.update({f"calls.{m}": c for m, c in json.loads(calls).items()})
             record.update(calls_total=total, steps=steps, error=error, rmse=rmse,
@@ -317,7 +318,11 @@ class SweepTable:
             for name, (low, high) in json.loads(ranges or "{}").items():
                 record[f"min.{name}"], record[f"max.{name}"] = low, high
             records.append(record)
-        return pd.DataFrame.from_records(records)
+        frame = pd.DataFrame.from_records(records)
+        # which columns are the swept names: a model may be called "min" or "calls", so the
+        # summary's prefixes cannot tell them apart
+        frame.attrs["swept"] = list(swept)
+        return frame
 
     def close(self) -> None:
         self._db.close()

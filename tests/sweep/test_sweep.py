@@ -266,3 +266,39 @@ def test_a_point_repeated_at_a_tighter_tol_counts_both_runs_calls(monkeypatch) -
     assert summary["calls_total"] == 1752 and summary["calls"] == {"a": 500, "b": 500}
     kept.tightened = None
     assert module.run_point("x.toml", {}, {})["calls_total"] == 1000
+
+
+def test_the_line_plot_of_one_swept_name_is_one_line(tmp_path) -> None:
+    """The summary's extremes (``min.NAME``, ``max.NAME``) are no swept names: a sweep of one
+    name is one line (each run was its own dot, labelled by its extremes), and a sweep of
+    tol and a parameter draws one work-precision curve per parameter value."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cosimstep.plotting import _lines, _swept
+    from cosimstep.sweep import SweepTable, run_key
+
+    table = SweepTable(tmp_path / "s.db")
+    for l2 in (0.5, 1.0):
+        for tol in (1e-2, 1e-3, 1e-4):
+            point = {"tol": tol, "l2": l2}
+            table.add(run_key("x.toml", point, {}), "x.toml", {},
+                      {"point": point, "status": "ok", "message": "", "calls": {"a": 10},
+                       "calls_total": int(10 / tol), "steps": 10, "error": tol / 3,
+                       "error_estimate": None, "wall_s": 0.1,
+                       "extremes": {"a.x": (-tol, l2), "b.y": (0.0, tol)}})
+    frame = table.frame()
+    table.close()
+    assert sorted(_swept(frame)) == ["l2", "tol"]
+    assert {"min.a.x", "max.b.y"} <= set(frame.columns)
+    one = frame[frame["l2"] == 0.5].drop(columns="l2")
+    one.attrs = {"swept": ["tol"]}
+    fig, ax = plt.subplots()
+    _lines(ax, one, one, "tol", "calls_total", True)
+    assert len(ax.lines) == 1 and len(ax.lines[0].get_xdata()) == 3
+    fig, ax = plt.subplots()
+    _lines(ax, frame, frame, "tol", "calls_total", True)
+    assert len(ax.lines) == 2  # one per l2
+    plt.close("all")
