@@ -295,10 +295,10 @@ def test_the_line_plot_of_one_swept_name_is_one_line(tmp_path) -> None:
     assert {"min.a.x", "max.b.y"} <= set(frame.columns)
     one = frame[frame["l2"] == 0.5].drop(columns="l2")
     one.attrs = {"swept": ["tol"]}
-    fig, ax = plt.subplots()
+    _, ax = plt.subplots()
     _lines(ax, one, one, "tol", "calls_total", True)
     assert len(ax.lines) == 1 and len(ax.lines[0].get_xdata()) == 3
-    fig, ax = plt.subplots()
+    _, ax = plt.subplots()
     _lines(ax, frame, frame, "tol", "calls_total", True)
     assert len(ax.lines) == 2  # one per l2
     plt.close("all")
