@@ -228,6 +228,8 @@ def prepare(system: str, point: Mapping[str, float], options: Mapping[str, Any]
     controller = make_controller(name, settings.pop("step", None), settings.pop("tol", None),
                                  **settings)
     problems = master.problems()
+    if not (math.isfinite(spec.until) and spec.until > 0.0):  # a run starts at t = 0
+        problems.append(f"`until` must be a positive number of seconds, got {spec.until}")
     if problems:
         raise ValueError("; ".join(problems))
     return spec, controller, master
@@ -356,6 +358,11 @@ def sweep(system: str | Path, params: Sequence[str | Axis] = (), *, design_kind:
     firsts: dict[tuple[str, ...], dict[str, float]] = {}
     for p in points:
         firsts.setdefault(tuple(sorted(p)), p)
+    ends = sorted({p["until"] for p in points if "until" in p
+                   and not (math.isfinite(p["until"]) and p["until"] > 0.0)})
+    if ends:  # swept: each point's own end (the first of each kind is checked below)
+        raise ValueError(f"`until` must be a positive number of seconds, got {ends[0]:g}"
+                         + (f" and {len(ends) - 1} more" if len(ends) > 1 else ""))
     for first in firsts.values():  # a misspelt name fails here, not in every run
         _, controller, master = prepare(system, first, options)
         _check_estimate(options.get("estimate", "sum"), controller, master)

@@ -82,6 +82,9 @@ def test_the_command_line_reports_bad_names_before_running(tmp_path, examples) -
                                     "--tol", "1e-3", "--master", "multirate",
                                     "--estimate", "richardson"])
     assert res.exit_code == 2 and "one step sequence for every sub-model" in res.output
+    for args in (["--param", "l2=1,2", "--until", "-3"], ["--param", "until=0.1,-1"]):
+        res = CliRunner().invoke(main, ["sweep", system, *args, "--out", out])
+        assert res.exit_code == 2 and "`until` must be a positive number" in res.output
     import socket
 
     with socket.socket() as free:  # a port nobody listens on
