@@ -25,6 +25,7 @@ from cosimstep.model_tables import ChangeSection, ModelSection, build_model, par
 from cosimstep.spec import (
     Changes,
     HeaderSection,
+    Number,
     Origin,
     Section,
     SystemSpec,
@@ -38,8 +39,8 @@ from cosimstep.system import System
 class ConnectionSection(Section):
     from_: str = Field(alias="from")
     to: str
-    gain: float = 1.0
-    offset: float = 0.0
+    gain: Number = 1.0
+    offset: Number = 0.0
     round: bool = False  # into an integer or boolean input: round to the nearest integer
 
 

@@ -23,7 +23,7 @@ from cosimstep.adapters.ode import ParameterSchedule, make_solver
 from cosimstep.errors import Problem
 from cosimstep.events import KINDS as EVENT_KINDS
 from cosimstep.models import REGISTRY
-from cosimstep.spec import SOLVER_FIX, Changes, HeaderSection, Section, parse
+from cosimstep.spec import SOLVER_FIX, Changes, HeaderSection, Number, Section, parse
 from cosimstep.submodel import SubModel
 
 
@@ -48,8 +48,8 @@ class ModelSection(Section):
 
 
 class ChangeSection(Section):
-    t: float
-    set: dict[str, float]
+    t: Number
+    set: dict[str, Number]
 
 
 def parse_changes(raw: dict[str, Any], loc: Callable[[str], str],

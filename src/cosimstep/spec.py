@@ -12,11 +12,12 @@ last; neither imports the other.
 from __future__ import annotations
 
 import difflib
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, field_validator
 
 from cosimstep.adapters.ode import ParameterSchedule, make_solver
 from cosimstep.errors import ConfigurationError, Problem
@@ -32,6 +33,11 @@ SOLVER_FIX = ("use {method = 'rk4', substeps = n | max_dt = dt} or "
               "{method = 'RK45', rtol = .., atol = ..}")
 
 
+Number = Annotated[float, Strict()]
+"""A number in a system file: an integer or a float, not ``true`` (which a lax float reads as
+1: ``until = true`` ran to t = 1 s) and not a string of digits."""
+
+
 class Section(BaseModel):
     """A strict table: unknown keys, NaN and infinities are problems."""
 
@@ -42,11 +48,11 @@ class MasterSection(Section):
     name: str = "gauss-seidel"
     extrapolation: int = 2
     order: list[str] | None = None
-    call_timeout: float = DEFAULT_CALL_TIMEOUT
+    call_timeout: Number = DEFAULT_CALL_TIMEOUT
     interpolation: str | None = None
     resync: str = "partial"
     coupling: str = "explicit"
-    coupling_tol: float = 1e-8
+    coupling_tol: Number = 1e-8
     max_iterations: int = 50
     coupling_input: str = "polynomial"
 
@@ -62,8 +68,8 @@ class MasterSection(Section):
 class ControllerSection(BaseModel):
     model_config = ConfigDict(extra="allow")  # controller options are checked when it is built
     name: str | None = None
-    step: float | None = None
-    tol: float | None = None
+    step: Number | None = None
+    tol: Number | None = None
 
 
 class ReferenceSection(Section):
@@ -75,9 +81,9 @@ class HeaderSection(BaseModel):
     model_config = ConfigDict(extra="ignore", allow_inf_nan=False)
     name: str | None = None
     description: str = ""
-    until: float = Field(10.0, gt=0)
-    parameters: dict[str, float] = {}
-    start: dict[str, float] = {}
+    until: Number = Field(10.0, gt=0)
+    parameters: dict[str, Number] = {}
+    start: dict[str, Number] = {}
     solver: dict[str, Any] = {"method": "rk4", "max_dt": 1e-3}
 
 
@@ -95,8 +101,14 @@ class SystemSpec:
     raw: dict[str, Any] = field(default_factory=dict)
 
 
-def parse(cls: type[BaseModel], body: Any, where: str, problems: list[Problem]) -> Any:
-    """``cls`` validated from ``body``, or ``None`` with the reasons added to ``problems``."""
+def parse(cls: type[BaseModel], body: Any, where: str, problems: list[Problem], *,
+          rest: bool = False) -> Any:
+    """``cls`` validated from ``body``, or ``None`` with the reasons added to ``problems``.
+
+    ``rest``: where keys were refused, the section of the others (the refused at their
+    defaults) instead of ``None``, so that what is checked on the whole section is checked on
+    them too: an unknown key in ``[master]`` hid eight bad values beside it. The refused keys
+    are in ``problems`` already, so a run never starts from it."""
     if not isinstance(body, dict):
         problems.append(Problem(where, "must be a table", "write it as [section] or {...}"))
         return None
@@ -109,7 +121,13 @@ def parse(cls: type[BaseModel], body: Any, where: str, problems: list[Problem]) 
             key = ".".join(str(p) for p in e["loc"])
             what, fix = _plain(e, keys, tuple(e["loc"][:-1]) in unknown)
             problems.append(Problem(f"{where}.{key}" if key else where, what, fix))
-        return None
+        if not rest:
+            return None
+        refused = {e["loc"][0] for e in exc.errors() if e["loc"]}
+        try:
+            return cls.model_validate({k: v for k, v in body.items() if k not in refused})
+        except ValidationError:
+            return None
 
 
 def _plain(error: Mapping[str, Any], keys: list[str], beside: bool) -> tuple[str, str]:
@@ -123,6 +141,10 @@ def _plain(error: Mapping[str, Any], keys: list[str], beside: bool) -> tuple[str
     if error["type"] == "missing":
         return "required key missing", (f"add {name} = ..." + (" (or correct the unknown key "
                                                                "listed beside)" if beside else ""))
+    if error["type"] == "float_type":  # a Number given as true/false or quoted
+        given = error["input"]
+        shown = str(given).lower() if isinstance(given, bool) else repr(given)
+        return f"must be a number, got {shown}", "write the number itself, e.g. 0.01"
     return error["msg"], "check the spelling and type of this key"
 
 
@@ -187,23 +209,45 @@ def _map_problems(sec: ReferenceSection, kind: ModelKind, states: set[str],
 
 
 def _master(body: Any, system: System, where: str, problems: list[Problem]) -> MasterOptions:
-    sec = parse(MasterSection, body, where, problems)
+    sec = parse(MasterSection, body, where, problems, rest=True)
     if sec is None:
         return MasterOptions()
     master = MasterOptions(sec.name, sec.extrapolation,
                            tuple(sec.order) if sec.order else None, sec.call_timeout,
                            sec.interpolation, sec.resync, sec.coupling, sec.coupling_tol,
                            sec.max_iterations, sec.coupling_input)
-    problems.extend(Problem(where, p) for p in master.problems())
+    problems.extend(Problem(where, p, "correct the [master] table (docs/system-files.md)")
+                    for p in master.problems())
     for m in sec.order or []:
         if m not in system.models:
             problems.append(Problem(f"{where}.order", f"unknown model '{m}'",
                                     f"use names from: {', '.join(system.models)}"))
+    twice = sorted({m for m in sec.order or [] if sec.order.count(m) > 1})
+    if twice:
+        problems.append(Problem(f"{where}.order", f"names {', '.join(twice)} more than once",
+                                "name each model at most once (the others step after them)"))
     return master
 
 
+def _file_indices(entries: Any, changes: Changes) -> list[int]:
+    """Each change's index among the file's ``[[parameter_changes]]`` entries: the changes
+    kept only the valid ones, so their own count misnames a later entry once an earlier one
+    was refused (found in order: the first entry from there with the same time and names)."""
+    entries = entries if isinstance(entries, list) else []
+    out, j = [], 0
+    for i, (t, values) in enumerate(changes):
+        while j < len(entries) and not (isinstance(entries[j], dict)
+                                        and entries[j].get("t") == t
+                                        and isinstance(entries[j].get("set"), dict)
+                                        and set(entries[j]["set"]) == set(values)):
+            j += 1
+        out.append(j if j < len(entries) else i)
+        j += 1
+    return out
+
+
 def _unused(header: HeaderSection, changes: Changes, used: set[str], loc: Callable[[str], str],
-            problems: list[Problem]) -> None:
+            problems: list[Problem], entries: Any = None) -> None:
     for key in header.parameters:
         if key not in used:
             problems.append(Problem(loc(f"parameters.{key}"), "no model uses this parameter",
@@ -213,7 +257,7 @@ def _unused(header: HeaderSection, changes: Changes, used: set[str], loc: Callab
             problems.append(Problem(loc(f"start.{key}"), "no model reads this start value",
                                     "check the spelling, or give it to one model: "
                                     "[models.<name>] start = {...}"))
-    for i, (_, values) in enumerate(changes):
+    for i, (_, values) in zip(_file_indices(entries, changes), changes, strict=True):
         for key in values:
             if key not in used:
                 fix = ("a change sets a shared parameter ([parameters]); one model's own "
@@ -226,21 +270,60 @@ def _unused(header: HeaderSection, changes: Changes, used: set[str], loc: Callab
 def _check_controller(sec: ControllerSection, where: str, problems: list[Problem]) -> None:
     """The file's ``[controller]`` built once, so that a bad value in it is listed with the
     file's other problems (not found alone, after they were fixed)."""
-    from cosimstep.controllers import CONTROLLERS, controller_options, make_controller, plain_error
+    from cosimstep.controllers import (
+        CONTROLLERS,
+        DEFAULT_ADAPTIVE,
+        controller_options,
+        make_controller,
+        plain_error,
+    )
 
     settings = sec.model_dump(exclude_none=True)
     name = settings.pop("name", None)
     if not settings:
         return
     step, tol = settings.pop("step", None), settings.pop("tol", None)
-    if step is None and (name or ("pc" if tol is not None else "fixed")) == "fixed":
+    if name is not None and name not in CONTROLLERS:
+        problems.append(Problem(f"{where}.name", f"unknown controller '{name}'",
+                                f"choose one of {', '.join(CONTROLLERS)}"))
+        return
+    # step and tol on their own, and the constructor asked again without each unknown option
+    # it names, so that one bad value does not hide the others
+    chosen = name or (DEFAULT_ADAPTIVE if tol is not None else "fixed")
+    for key, value in (("step", step), ("tol", tol)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            problems.append(Problem(f"{where}.{key}", f"must be a positive number, got {value}",
+                                    "e.g. 0.01" if key == "step" else "e.g. 1e-4"))
+    step = step if step is not None and math.isfinite(step) and step > 0 else None
+    tol = tol if tol is None or (math.isfinite(tol) and tol > 0) else 1e-4
+    if step is None and chosen == "fixed":
         step = 1.0  # the command line may still give the step: check the rest with a stand-in
-    try:
-        make_controller(name, step, tol, **settings)
-    except (TypeError, ValueError) as exc:
-        known = f"; options of '{name}': {', '.join(controller_options(name))}" \
-            if name in CONTROLLERS else ""
-        problems.append(Problem(where, plain_error(exc), f"correct the [controller] table{known}"))
+    options = controller_options(chosen)
+    while True:
+        try:
+            make_controller(name, step, tol, **settings)
+            return
+        except (TypeError, ValueError) as exc:
+            unknown = _unknown_option(exc, settings)
+            if unknown is None:
+                problems.append(Problem(where, plain_error(exc), f"correct the [controller] "
+                                        f"table; options of '{chosen}': {', '.join(options)}"))
+                return
+            close = difflib.get_close_matches(unknown, [*options, "step", "tol"], n=1)
+            problems.append(Problem(f"{where}.{unknown}", f"unknown option of '{chosen}'",
+                                    f"did you mean '{close[0]}'?" if close
+                                    else f"its options: {', '.join(options)}"))
+            del settings[unknown]
+
+
+def _unknown_option(exc: Exception, settings: Mapping[str, Any]) -> str | None:
+    """The option a controller's constructor refused as an unexpected keyword, if one of
+    ``settings`` (Python names it in ``got an unexpected keyword argument 'x'``)."""
+    text = str(exc)
+    if not (isinstance(exc, TypeError) and "unexpected keyword argument" in text):
+        return None
+    key = text.rpartition("argument ")[2].strip("'\"")
+    return key if key in settings else None
 
 
 @dataclass
@@ -281,7 +364,7 @@ def finish(settings: Mapping[str, Any], header: HeaderSection, system: System, o
             ref = build_reference(sec, header, changes, system, loc("reference"), problems,
                                   used if used is not None else set(), refused)
     if used is not None:
-        _unused(header, changes, used, loc, problems)
+        _unused(header, changes, used, loc, problems, settings.get("parameter_changes"))
     if problems:
         raise ConfigurationError(problems, origin.source)
     until = origin.until if origin.until is not None else (
@@ -292,5 +375,6 @@ def finish(settings: Mapping[str, Any], header: HeaderSection, system: System, o
         reference=ref, raw=raw)
 
 
-__all__ = ["ControllerSection", "HeaderSection", "MasterSection", "Origin", "ReferenceSection",
-           "Section", "SystemSpec", "build_reference", "finish", "parse", "parse_header"]
+__all__ = ["ControllerSection", "HeaderSection", "MasterSection", "Number", "Origin",
+           "ReferenceSection", "Section", "SystemSpec", "build_reference", "finish", "parse",
+           "parse_header"]
