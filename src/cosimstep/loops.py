@@ -187,7 +187,7 @@ class ControllerLoop(_Loop):
     def _attempt(self, landing: float, event: float) -> None:
         """One attempt at the next step; a step that would pass ``landing`` lands on it
         (``event``: the next time event or the end)."""
-        controller, ctx, sink, t = self.controller, self.ctx, self.sink, self.t
+        ctx, sink, t = self.ctx, self.sink, self.t
         if self.budget:
             self.budget.check(int(self.runner.calls.sum()) + self._companion_calls())
         h = self._proposed(t, landing)
@@ -195,17 +195,7 @@ class ControllerLoop(_Loop):
         ctx.edge = event if event < self.until or self.final_event else math.nan
         if self.companion is not None:
             self.companion.ctx.edge = ctx.edge
-        try:
-            attempt = controller.attempt(ctx, t, h)
-        except SubModelError as exc:
-            attempt = self._failed_trial(exc, t, h)
-        except StepSizeError:
-            policy = getattr(controller, "policy", None)
-            failure = self._failure
-            error = still_failing(failure, t, getattr(policy, "hmin", math.nan))
-            if error is not None and failure is not None:
-                raise error from failure[0]
-            raise
+        attempt = self._try(t, h)
         if sink is not None:
             sink.add_attempt(None, t, h, attempt.accepted, attempt.error)
         self._h = attempt.h_next
@@ -232,6 +222,22 @@ class ControllerLoop(_Loop):
             # tolerance, or an indicator already at 0 when the step began
             late = not located and h > EVENT_TOL * max(1.0, abs(t))
             self.fire(self.t, late, before)  # type: ignore[misc]
+
+    def _try(self, t: float, h: float) -> Attempt:
+        """The controller's attempt at ``[t, t + h]``; a sub-model's failure on it is a
+        rejection (:meth:`_failed_trial`), and a step that fell below ``hmin`` short of where a
+        sub-model last failed ends the run on that failure (:func:`still_failing`)."""
+        try:
+            return self.controller.attempt(self.ctx, t, h)
+        except SubModelError as exc:
+            return self._failed_trial(exc, t, h)
+        except StepSizeError:
+            policy = getattr(self.controller, "policy", None)
+            failure = self._failure
+            error = still_failing(failure, t, getattr(policy, "hmin", math.nan))
+            if error is not None and failure is not None:
+                raise error from failure[0]
+            raise
 
     def _keep(self, t: float, h: float, y: np.ndarray, landed: bool, on_event: bool) -> None:
         """Record the accepted step of ``h`` ending at ``t`` with outputs ``y``; ``landed``: on

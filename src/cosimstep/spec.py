@@ -290,12 +290,7 @@ def _check_controller(sec: ControllerSection, where: str, problems: list[Problem
     # step and tol on their own, and the constructor asked again without each unknown option
     # it names, so that one bad value does not hide the others
     chosen = name or (DEFAULT_ADAPTIVE if tol is not None else "fixed")
-    for key, value in (("step", step), ("tol", tol)):
-        if value is not None and not (math.isfinite(value) and value > 0):
-            problems.append(Problem(f"{where}.{key}", f"must be a positive number, got {value}",
-                                    "e.g. 0.01" if key == "step" else "e.g. 1e-4"))
-    step = step if step is not None and math.isfinite(step) and step > 0 else None
-    tol = tol if tol is None or (math.isfinite(tol) and tol > 0) else 1e-4
+    step, tol = _step_and_tol(step, tol, where, problems)
     if step is None and chosen == "fixed":
         step = 1.0  # the command line may still give the step: check the rest with a stand-in
     options = controller_options(chosen)
@@ -314,6 +309,20 @@ def _check_controller(sec: ControllerSection, where: str, problems: list[Problem
                                     f"did you mean '{close[0]}'?" if close
                                     else f"its options: {', '.join(options)}"))
             del settings[unknown]
+
+
+def _step_and_tol(step: float | None, tol: float | None, where: str,
+                  problems: list[Problem]) -> tuple[float | None, float | None]:
+    """``[controller]``'s step and tol, each refused on its own where it is no positive number;
+    what the rest of the table is checked with (a refused step left out, a refused tol
+    standing in as 1e-4)."""
+    for key, value in (("step", step), ("tol", tol)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            problems.append(Problem(f"{where}.{key}", f"must be a positive number, got {value}",
+                                    "e.g. 0.01" if key == "step" else "e.g. 1e-4"))
+    step = step if step is not None and math.isfinite(step) and step > 0 else None
+    tol = tol if tol is None or (math.isfinite(tol) and tol > 0) else 1e-4
+    return step, tol
 
 
 def _unknown_option(exc: Exception, settings: Mapping[str, Any]) -> str | None:

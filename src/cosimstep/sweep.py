@@ -358,11 +358,7 @@ def sweep(system: str | Path, params: Sequence[str | Axis] = (), *, design_kind:
     firsts: dict[tuple[str, ...], dict[str, float]] = {}
     for p in points:
         firsts.setdefault(tuple(sorted(p)), p)
-    ends = sorted({p["until"] for p in points if "until" in p
-                   and not (math.isfinite(p["until"]) and p["until"] > 0.0)})
-    if ends:  # swept: each point's own end (the first of each kind is checked below)
-        raise ValueError(f"`until` must be a positive number of seconds, got {ends[0]:g}"
-                         + (f" and {len(ends) - 1} more" if len(ends) > 1 else ""))
+    _check_ends(points)
     for first in firsts.values():  # a misspelt name fails here, not in every run
         _, controller, master = prepare(system, first, options)
         _check_estimate(options.get("estimate", "sum"), controller, master)
@@ -382,6 +378,16 @@ def sweep(system: str | Path, params: Sequence[str | Axis] = (), *, design_kind:
         return table.frame(keys)
     finally:
         table.close()
+
+
+def _check_ends(points: Sequence[Mapping[str, float]]) -> None:
+    """``ValueError`` where a swept ``until`` is no positive number: each point has its own,
+    and :func:`prepare` sees only the first point of each kind."""
+    ends = sorted({p["until"] for p in points if "until" in p
+                   and not (math.isfinite(p["until"]) and p["until"] > 0.0)})
+    if ends:
+        raise ValueError(f"`until` must be a positive number of seconds, got {ends[0]:g}"
+                         + (f" and {len(ends) - 1} more" if len(ends) > 1 else ""))
 
 
 def _points(params: Sequence[str | Axis], design_kind: str, samples: int | None,
