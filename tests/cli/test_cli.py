@@ -483,3 +483,23 @@ def test_every_problem_of_a_table_is_listed_and_true_is_no_number(tmp_path):
                   "parameter_changes[0].t: -1 is before the run starts",
                   "parameter_changes[1].set.lamb: no model uses this parameter"):
         assert words in res.output, (words, res.output)
+
+
+def test_a_python_model_file_imports_the_modules_beside_it(tmp_path):
+    """``class = "plant.py:Plant"`` where plant.py does ``from parts import ...`` with
+    parts.py beside it: found, as a script run from that folder finds it (it was not, unless
+    another model had loaded parts.py first)."""
+    (tmp_path / "s31parts.py").write_text(
+        "import numpy as np\nfrom cosimstep import Port, SubModel\n"
+        "class Source(SubModel):\n"
+        "    inputs = ()\n    outputs = (Port('y', '1', 1.0),)\n"
+        "    def set_inputs(self, values): pass\n"
+        "    def do_step(self, t, h): pass\n"
+        "    def get_outputs(self): return np.array([1.0])\n")
+    (tmp_path / "s31plant.py").write_text("from s31parts import Source\n"
+                                          "class Plant(Source):\n    pass\n")
+    (tmp_path / "s.toml").write_text('until = 0.1\n[models.p]\ntype = "python"\n'
+                                     'class = "s31plant.py:Plant"\n')
+    res = CliRunner().invoke(main, ["run", str(tmp_path / "s.toml"), "--step", "0.05",
+                                    "--no-store", "-q"])
+    assert res.exit_code == 0, res.output
