@@ -35,6 +35,16 @@ from cosimstep.writable import output_problems
 EXIT_FAILED, EXIT_CONFIG = 1, 2
 
 
+def _tables(db: str) -> set[str]:
+    """The tables of the SQLite file ``db``, opened read-only (none if it is no database)."""
+    try:
+        with sqlite3.connect(f"{Path(db).resolve().as_uri()}?mode=ro", uri=True) as con:
+            return {r[0] for r in con.execute("SELECT name FROM sqlite_master "
+                                              "WHERE type = 'table'")}
+    except sqlite3.Error:
+        return set()
+
+
 def _config_exit(exc: ConfigurationError) -> None:
     click.echo(str(exc), err=True)
     sys.exit(EXIT_CONFIG)
@@ -249,6 +259,16 @@ def _checkpoint_problems(every: float, steps: int | None, resume_db: str | None,
     if out is not None and no_store:
         bad.append(Problem("--out", "names the results store, --no-store keeps none",
                            "leave out one of them"))
+    # --checkpoint-every has a default: only one given on the command line is asked for
+    given_every = click.get_current_context().get_parameter_source("checkpoint_every") \
+        is click.core.ParameterSource.COMMANDLINE
+    asked = [flag for flag, value in (("--checkpoint-every", given_every and every),
+                                      ("--checkpoint-steps", steps)) if value]
+    for why, fix, given in (("--no-store keeps no store to write them to", "leave out "
+                             "--no-store", no_store),
+                            ("a run stored on a grid (--output-interval) cannot be resumed",
+                             "leave out --output-interval", output_interval is not None)):
+        bad += [Problem(flag, f"writes checkpoints, but {why}", fix) for flag in asked if given]
     return bad
 
 
@@ -383,6 +403,13 @@ def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | N
     strong.update({k: v for k, v in (coupling or {}).items() if v is not None})
     opts = dataclasses.replace(opts, **strong)
     problems = [Problem("master", p, "see `cosimstep run --help`") for p in opts.problems()]
+    if opts.coupling == "explicit":  # what only an iteration reads would change nothing
+        problems += [Problem(flag, "sets the iteration of strong coupling; this run's coupling "
+                             "is explicit", "add --coupling fixed-point|aitken|iqn-ils, or "
+                             "leave it out")
+                     for flag, key in (("--coupling-tol", "coupling_tol"),
+                                       ("--max-iterations", "max_iterations"))
+                     if (coupling or {}).get(key) is not None]
     if problems:
         _config_exit(ConfigurationError(problems, spec.source))
     return opts
@@ -544,6 +571,10 @@ def sweep_command(system: str, params: tuple[str, ...], design_kind: str, sample
     from cosimstep.sweep import sweep
 
     bad = output_problems("--out", out, store=True)
+    if design_kind == "full":  # a full factorial takes every listed value, no sample
+        bad += [Problem(flag, "sets a sampled design; --design is full", "add --design "
+                        "lhs|sobol, or leave it out")
+                for flag, value in (("--samples", samples), ("--seed", seed)) if value is not None]
     if keep == "traces" and not bad:
         bad = output_problems("--keep traces", Path(out).with_name(Path(out).stem + "_traces"),
                               folder=True)
@@ -588,6 +619,10 @@ def plot_sweep_command(db: str, x: str | None, work_precision: bool, y: str | No
     bad = output_problems("-o", output)
     if not Path(db).is_file():
         bad.append(Problem("DB", f"no file {db}", "give the --out of a cosimstep sweep"))
+    elif "sweep_run" not in _tables(db):
+        bad.append(Problem("DB", f"{db} holds no sweep table" + (
+            " (it is a results store: see `cosimstep runs`, `plot`)"
+            if "run" in _tables(db) else ""), "give the --out of a cosimstep sweep"))
     if bad:
         _config_exit(ConfigurationError(bad, "the command line"))
     table = SweepTable(db)
@@ -707,7 +742,9 @@ def list_runs(db: str, delete: int | None, as_json: bool) -> None:
             return
         table = run_table(db)
     except (FileNotFoundError, LookupError, RuntimeError, sqlite3.DatabaseError) as exc:
-        click.echo(f"error: {db}: {exc}", err=True)
+        kind = " (it is a sweep table: see `cosimstep plot-sweep`)" \
+            if Path(db).is_file() and "sweep_run" in _tables(db) else ""
+        click.echo(f"error: {db}: {exc}{kind}", err=True)
         sys.exit(EXIT_CONFIG)
     if as_json:
         click.echo(json.dumps(table, indent=2, default=str))

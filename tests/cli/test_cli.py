@@ -503,3 +503,37 @@ def test_a_python_model_file_imports_the_modules_beside_it(tmp_path):
     res = CliRunner().invoke(main, ["run", str(tmp_path / "s.toml"), "--step", "0.05",
                                     "--no-store", "-q"])
     assert res.exit_code == 0, res.output
+
+
+def test_options_that_would_change_nothing_are_refused(examples, tmp_path):
+    """An option the run would ignore is refused like --resync without multirate: the
+    iteration's settings with explicit coupling, checkpoints without a store or on a grid,
+    a sample size with a full design; and a store of the other kind is named as such (a
+    sweep table given to `runs`, a results store to `plot-sweep`, which is left as it was)."""
+    system = str(examples / "double_pendulum_slow.toml")
+    run = ["run", system, "--until", "0.1"]
+    cases = [([*run, "--coupling-tol", "1e-6", "--no-store"], "--coupling-tol: sets the "
+              "iteration of strong coupling"),
+             ([*run, "--no-store", "--checkpoint-steps", "10"], "--checkpoint-steps: writes "
+              "checkpoints, but --no-store"),
+             ([*run, "--out", str(tmp_path / "g.db"), "--output-interval", "0.05",
+               "--checkpoint-every", "5"], "--checkpoint-every: writes checkpoints, but a run "
+              "stored on a grid"),
+             (["sweep", system, "--param", "l2=1,2", "--samples", "5", "--out",
+               str(tmp_path / "s.db")], "--samples: sets a sampled design; --design is full")]
+    for args, words in cases:
+        res = CliRunner().invoke(main, args)
+        assert res.exit_code == 2 and words in res.output, (args, res.output)
+    db = tmp_path / "r.db"
+    assert CliRunner().invoke(main, [*run, "--out", str(db)]).exit_code == 0
+    before = db.read_bytes()
+    res = CliRunner().invoke(main, ["plot-sweep", str(db), "--x", "l2", "-o",
+                                    str(tmp_path / "p.png")])
+    assert res.exit_code == 2 and "holds no sweep table (it is a results store" in res.output
+    assert db.read_bytes() == before
+    sweep_db = tmp_path / "sw.db"
+    assert CliRunner().invoke(main, ["sweep", system, "--param", "l2=1", "--until", "0.1",
+                                     "--step", "0.01", "--workers", "1", "-q", "--out",
+                                     str(sweep_db)]).exit_code == 0
+    res = CliRunner().invoke(main, ["runs", str(sweep_db)])
+    assert res.exit_code == 2 and "it is a sweep table" in res.output
