@@ -259,11 +259,18 @@ def _checkpoint_problems(every: float, steps: int | None, resume_db: str | None,
     if out is not None and no_store:
         bad.append(Problem("--out", "names the results store, --no-store keeps none",
                            "leave out one of them"))
+    return bad + _ignored_checkpoints(every, steps, no_store, output_interval)
+
+
+def _ignored_checkpoints(every: float, steps: int | None, no_store: bool,
+                         output_interval: float | None) -> list[Problem]:
+    """Checkpoints asked for where none can be written: without a store, or on a grid."""
     # --checkpoint-every has a default: only one given on the command line is asked for
     given_every = click.get_current_context().get_parameter_source("checkpoint_every") \
         is click.core.ParameterSource.COMMANDLINE
     asked = [flag for flag, value in (("--checkpoint-every", given_every and every),
                                       ("--checkpoint-steps", steps)) if value]
+    bad = []
     for why, fix, given in (("--no-store keeps no store to write them to", "leave out "
                              "--no-store", no_store),
                             ("a run stored on a grid (--output-interval) cannot be resumed",
