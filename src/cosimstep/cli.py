@@ -46,7 +46,15 @@ def _tables(db: str) -> set[str]:
 
 
 def _config_exit(exc: ConfigurationError) -> None:
+    """Exit 2 listing every problem on stderr; a command asked for ``--json`` also prints
+    them as one JSON object on stdout (status ``invalid``), so a script reading stdout sees
+    why there is no result."""
     click.echo(str(exc), err=True)
+    context = click.get_current_context(silent=True)
+    if context is not None and context.params.get("as_json"):
+        click.echo(json.dumps({"status": "invalid", "source": exc.source,
+                               "problems": [dataclasses.asdict(p) for p in exc.problems]},
+                              indent=2))
     sys.exit(EXIT_CONFIG)
 
 

@@ -537,3 +537,15 @@ def test_options_that_would_change_nothing_are_refused(examples, tmp_path):
                                      str(sweep_db)]).exit_code == 0
     res = CliRunner().invoke(main, ["runs", str(sweep_db)])
     assert res.exit_code == 2 and "it is a sweep table" in res.output
+
+
+def test_a_refused_configuration_is_json_on_stdout_with_json(examples):
+    """`run --json` whose command line or file is refused prints the problems as one JSON
+    object on stdout (it printed nothing there), exit 2 as ever."""
+    res = CliRunner().invoke(main, ["run", str(examples / "double_pendulum_slow.toml"),
+                                    "--until", "-1", "--step", "0", "--json"])
+    assert res.exit_code == 2
+    out = json.loads(res.stdout[res.stdout.index("{"):])
+    assert out["status"] == "invalid"
+    assert {p["where"] for p in out["problems"]} >= {"--until"}
+    assert all(p["what"] and p["fix"] for p in out["problems"])
