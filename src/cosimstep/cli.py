@@ -581,7 +581,9 @@ def sweep_command(system: str, params: tuple[str, ...], design_kind: str, sample
     """Run SYSTEM at every point of a design, one Dask task per run; summaries to --out.
 
     The same command run again runs only what is missing; a failed run is recorded with its
-    message and the sweep goes on.
+    message and the sweep goes on. Exit code 0 once every point has a record, whatever the
+    runs' statuses (the last line counts them; `plot-sweep` marks failed points); 2 for a
+    refused configuration, before any run.
     """
     from cosimstep.sweep import sweep
 
