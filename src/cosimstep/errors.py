@@ -86,6 +86,8 @@ def still_failing(failure: tuple[SubModelError, float] | None, t: float,
     ``pc``). The failure, not the estimate, stopped the run."""
     if failure is None or not t < failure[1]:
         return None
-    exc = failure[0]
-    return SubModelError(exc.model, exc.t, f"{exc.reason} (still after retrying with steps "
-                         f"down to below hmin = {hmin:.3g} s, at t = {t:.12g})", exc.h)
+    exc, end = failure
+    return SubModelError(exc.model, exc.t, f"{exc.reason} (the run did not get past "
+                         f"t = {end:.12g}, where it failed: the steps fell below hmin = "
+                         f"{hmin:.3g} s at t = {t:.12g}, the last rejection the error "
+                         "estimate's)", exc.h)
