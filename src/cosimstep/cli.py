@@ -26,7 +26,7 @@ from cosimstep.controllers import (
     merged_settings,
     plain_error,
 )
-from cosimstep.errors import ConfigurationError, Problem
+from cosimstep.errors import ConfigurationError, Problem, is_number
 from cosimstep.iteration import COUPLINGS
 from cosimstep.masters import COUPLING_INPUTS, MASTERS, RESYNC, MasterOptions, trapezoidal_refusal
 from cosimstep.simulate import SimulationResult, simulate
@@ -132,7 +132,8 @@ def main() -> None:
               help="Controller option, repeatable, e.g. --opt mode=reference --opt hmax=0.02.")
 @click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
               help="Set a parameter without editing the file: a shared one (l2=0.5) or one "
-              "sub-model's (bar2.l2=0.5); repeatable.")
+              "sub-model's (bar2.l2=0.5; any TOML value, e.g. 'room.mode=\"eco\"'); "
+              "repeatable.")
 @click.option("--start", "starts", multiple=True, metavar="NAME=VALUE",
               help="Set a start value the same way (theta1=0.3 or bar1.theta1=0.3).")
 @click.option("--out", type=click.Path(dir_okay=False), help="SQLite results file "
@@ -299,24 +300,37 @@ def _resumable(db: str, run_id: int | None) -> int:
     raise AssertionError  # unreachable: _config_exit exits
 
 
-def _values(pairs: tuple[str, ...], flag: str) -> dict[str, float]:
-    """``NAME=NUMBER`` pairs (exit 2 listing every malformed one)."""
+def _values(pairs: tuple[str, ...], flag: str) -> dict[str, Any]:
+    """``NAME=VALUE`` pairs (exit 2 listing every malformed one). A value is a number; one
+    sub-model's (``MODEL.NAME``) may also be any TOML value, as in its table of the file —
+    text in quotes (``--param 'room.mode="eco"'``), ``true``/``false``, an array."""
     out, bad = {}, []
     for pair in pairs:
         key, sep, text = pair.partition("=")
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not sep or not key.strip() or not math.isfinite(value):
-            bad.append(Problem(f"{flag} {pair}", "expected NAME=NUMBER",
-                               f"e.g. {flag} NAME=0.5 (a shared value) or {flag} "
-                               "MODEL.NAME=0.5 (one sub-model's)"))
+        key = key.strip()
+        value = _toml_value(text)
+        number = is_number(value)
+        if not sep or not key or value is None or (number and not math.isfinite(value)) \
+                or not (number or "." in key):
+            bad.append(Problem(f"{flag} {pair}", "expected NAME=NUMBER, or MODEL.NAME=VALUE "
+                               "with a TOML value", f"e.g. {flag} NAME=0.5 (a shared value), "
+                               f"{flag} MODEL.NAME=0.5 or {flag} 'MODEL.NAME=\"text\"' (one "
+                               "sub-model's)"))
             continue
-        out[key.strip()] = value
+        out[key] = float(value) if number else value
     if bad:
         _config_exit(ConfigurationError(bad, "the command line"))
     return out
+
+
+def _toml_value(text: str) -> Any:
+    """``text`` read as a TOML value (``None`` if it is none)."""
+    import tomllib
+
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return None
 
 
 def _options(pairs: tuple[str, ...]) -> dict[str, Any]:

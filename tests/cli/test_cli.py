@@ -549,3 +549,31 @@ def test_a_refused_configuration_is_json_on_stdout_with_json(examples):
     assert out["status"] == "invalid"
     assert {p["where"] for p in out["problems"]} >= {"--until"}
     assert all(p["what"] and p["fix"] for p in out["problems"])
+
+
+def test_one_sub_models_text_parameter_from_the_command_line(tmp_path):
+    """``--param 'MODEL.NAME="text"'`` sets a Python sub-model's string parameter (any TOML
+    value, as in its table of the file); a shared value stays a number, and NaN, inf or a
+    bare word are refused, each named."""
+    (tmp_path / "s31modes.py").write_text(
+        "import numpy as np\nfrom cosimstep import Port, SubModel\n"
+        "class Mode(SubModel):\n"
+        "    inputs = ()\n    outputs = (Port('y', '1', 0.0),)\n"
+        "    def __init__(self, mode='off'):\n        self.mode = mode\n"
+        "    def set_inputs(self, values): pass\n"
+        "    def do_step(self, t, h): pass\n"
+        "    def get_outputs(self): return np.array([{'off': 0.0, 'eco': 1.0}[self.mode]])\n")
+    (tmp_path / "s.toml").write_text('until = 0.1\n[models.m]\ntype = "python"\n'
+                                     'class = "s31modes.py:Mode"\n')
+    from cosimstep import read_run
+
+    args = ["run", str(tmp_path / "s.toml"), "--step", "0.05", "-q"]
+    db = tmp_path / "r.db"
+    res = CliRunner().invoke(main, [*args, "--param", 'm.mode="eco"', "--out", str(db)])
+    assert res.exit_code == 0, res.output
+    assert read_run(db).values[:, 0].tolist() == [1.0, 1.0, 1.0]  # 'eco', not 'off'
+    res = CliRunner().invoke(main, [*args, "--param", "m.mode=eco", "--param", "x=nan",
+                                    "--param", 'y="1"'])
+    assert res.exit_code == 2
+    assert all(f"--param {p}: expected NAME=NUMBER" in res.output
+               for p in ("m.mode=eco", "x=nan", 'y="1"')), res.output
