@@ -456,9 +456,10 @@ def _check_scheme(ctrl: Any, opts: MasterOptions, spec: SystemSpec) -> None:
     problems = []
     multirate = opts.name == "multirate"
     if multirate and getattr(ctrl, "policy", None) is None:
-        problems.append(Problem("controller", "the multirate master needs an error-controlled "
-                                f"controller; '{ctrl.name}' has no tolerance",
-                                "give --tol TOL (or --controller pc)"))
+        problems.append(Problem("controller", "the multirate master steps every sub-model "
+                                "with a controller's error policy (pc, corrector, defect, "
+                                f"doubling, embedded); '{ctrl.name}' has none",
+                                "give --tol TOL alone (pc), or --controller pc"))
     unable = [n for n, m in spec.system.models.items() if not m.capabilities.can_save_state]
     if unable and (ctrl.needs_rollback or multirate):
         what = f"controller '{ctrl.name}'" if ctrl.needs_rollback else "the multirate master"
