@@ -275,8 +275,9 @@ def _ignored_checkpoints(every: float, steps: int | None, no_store: bool,
                          output_interval: float | None) -> list[Problem]:
     """Checkpoints asked for where none can be written: without a store, or on a grid."""
     # --checkpoint-every has a default: only one given on the command line is asked for
-    given_every = click.get_current_context().get_parameter_source("checkpoint_every") \
-        is click.core.ParameterSource.COMMANDLINE
+    context = click.get_current_context(silent=True)
+    given_every = context is not None and context.get_parameter_source(
+        "checkpoint_every") is click.core.ParameterSource.COMMANDLINE
     asked = [flag for flag, value in (("--checkpoint-every", given_every and every),
                                       ("--checkpoint-steps", steps)) if value]
     bad = []
@@ -308,7 +309,10 @@ def _values(pairs: tuple[str, ...], flag: str) -> dict[str, Any]:
     for pair in pairs:
         key, sep, text = pair.partition("=")
         key = key.strip()
-        value = _toml_value(text)
+        try:
+            value: Any = float(text)
+        except ValueError:  # one sub-model's parameter may be any TOML value (not a start)
+            value = _toml_value(text) if flag == "--param" and "." in key else None
         number = is_number(value)
         if not sep or not key or value is None or (number and not math.isfinite(value)) \
                 or not (number or "." in key):
@@ -433,12 +437,14 @@ def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | N
     opts = dataclasses.replace(opts, **strong)
     problems = [Problem("master", p, "see `cosimstep run --help`") for p in opts.problems()]
     if opts.coupling == "explicit":  # what only an iteration reads would change nothing
+        loops = bool(spec.system.loops())  # (algebraic loops are solved to coupling_tol)
         problems += [Problem(flag, "sets the iteration of strong coupling; this run's coupling "
                              "is explicit", "add --coupling fixed-point|aitken|iqn-ils, or "
                              "leave it out")
                      for flag, key in (("--coupling-tol", "coupling_tol"),
                                        ("--max-iterations", "max_iterations"))
-                     if (coupling or {}).get(key) is not None]
+                     if (coupling or {}).get(key) is not None
+                     and not (loops and key == "coupling_tol")]
     if problems:
         _config_exit(ConfigurationError(problems, spec.source))
     return opts
@@ -879,7 +885,7 @@ def export(kind: str, output: str, params: tuple[str, ...], starts: tuple[str, .
                 sys.exit(EXIT_CONFIG)
         return out
 
-    bad = output_problems("-o", output, folder=Path(output).is_dir())
+    bad = output_problems("-o", output, folder=Path(output).suffix.lower() != ".fmu")
     if bad:
         _config_exit(ConfigurationError(bad, "the command line"))
     try:

@@ -73,21 +73,27 @@ class StepSizeError(RuntimeError):
     """A step controller cannot continue (for example the step fell below its minimum)."""
 
 
-def still_failing(failure: tuple[SubModelError, float] | None, t: float,
-                  hmin: float) -> SubModelError | None:
-    """The error to end a run with when its step fell below ``hmin`` at ``t`` short of the
-    end of the step a sub-model last failed on (``failure``: that error and that end), else
-    ``None``.
+ROUND_OFF = 1e-13
+"""A step's share of ``tol`` (relative) below which its error estimate is round-off: a
+difference of two runs' outputs resolves no more (about 500 ulps)."""
+
+
+def still_failing(failure: tuple[SubModelError, float] | None, t: float, share: float,
+                  stop: Exception) -> SubModelError | None:
+    """The error to end a run with when its step fell below ``hmin`` at ``t`` (``stop``)
+    while creeping up on the end of the step a sub-model last failed on (``failure``: that
+    error and that end), else ``None``.
 
     After a failed trial the steps creep up on the time the sub-model fails at; there, at
     steps of ~1e-10 s, a step's share of ``tol`` falls below round-off, the last rejection is
     the error estimate's, and ``hmin`` was reached on a message about an error of 1e-16 while
     the sub-model's own exception was lost (a Python sub-model raising past t = 1000 s under
-    ``pc``). The failure, not the estimate, stopped the run."""
-    if failure is None or not t < failure[1]:
+    ``pc``). Only there — short of the failed step's end, at a share (``tol·h/T``) below
+    :data:`ROUND_OFF` — is the failure what stopped the run; a stop with a resolvable share
+    is the estimate's own (a jump the master was not told of), however recent a failure."""
+    if failure is None or not t < failure[1] or not share < ROUND_OFF:
         return None
     exc, end = failure
     return SubModelError(exc.model, exc.t, f"{exc.reason} (the run did not get past "
-                         f"t = {end:.12g}, where it failed: the steps fell below hmin = "
-                         f"{hmin:.3g} s at t = {t:.12g}, the last rejection the error "
-                         "estimate's)", exc.h)
+                         f"t = {end:.12g}, where it failed: retried with steps down to where "
+                         f"their share of tol, {share:.1g}, is round-off; then {stop})", exc.h)

@@ -231,12 +231,12 @@ class ControllerLoop(_Loop):
             return self.controller.attempt(self.ctx, t, h)
         except SubModelError as exc:
             return self._failed_trial(exc, t, h)
-        except StepSizeError:
+        except StepSizeError as stop:
             policy = getattr(self.controller, "policy", None)
-            failure = self._failure
-            error = still_failing(failure, t, getattr(policy, "hmin", math.nan))
-            if error is not None and failure is not None:
-                raise error from failure[0]
+            share = policy.tol * h / (self.until - self.t0) if policy is not None else math.inf
+            error = still_failing(self._failure, t, share, stop)
+            if error is not None and self._failure is not None:
+                raise error from self._failure[0]
             raise
 
     def _keep(self, t: float, h: float, y: np.ndarray, landed: bool, on_event: bool) -> None:

@@ -205,8 +205,9 @@ def _python_model(sec: ModelSection, base_dir: Path, where: str,
     try:
         if module_name.endswith(".py"):
             file = (base_dir / module_name).resolve()
-            # the file imports what lies beside it, as a script run from there would: its
-            # folder goes on the path (the file itself is executed afresh on every load)
+            # the file may import what lies beside it: its folder goes on the path, last, so
+            # an installed package of the same name wins (the file itself is executed afresh
+            # on every load; what it imports is cached as any import is)
             if str(file.parent) not in sys.path:
                 sys.path.append(str(file.parent))
             spec = importlib.util.spec_from_file_location(file.stem, file)

@@ -988,8 +988,9 @@ class Multirate:
             self._guard(k, t, model.restore_state, token)
             try:
                 pol.check(t, h, verdict.h_next, verdict.why)
-            except StepSizeError:
-                error = still_failing(tr.failure, t, pol.hmin)
+            except StepSizeError as stop:
+                share = pol.tol * h / max(self.until - self.tracks[k].times[0], h)
+                error = still_failing(tr.failure, t, share, stop)
                 if error is not None and tr.failure is not None:
                     raise error from tr.failure[0]
                 raise

@@ -219,7 +219,7 @@ def plot_work_precision(frame: Any, path: str | Path) -> Path:
     # one line per run options and per value of every other swept name (a sweep of tol and a
     # parameter: one curve per parameter value, not one zig-zag through them all)
     others = [c for c in _swept(frame) if c not in ("tol", "step")]
-    for key, rows in ok.groupby(["options", *others]):
+    for key, rows in ok.groupby(["options", *others], dropna=False):
         options, *values = key
         label = ", ".join([str(options), *(f"{n} = {v:g}" for n, v in zip(others, values))])
         rows = rows.sort_values("error")

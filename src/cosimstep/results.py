@@ -45,19 +45,22 @@ def write(run: StoredRun, path: str | Path, variables: Sequence[str] | None = No
     if suffix not in FORMATS:
         raise ValueError(f"'{path}': unknown format; end the name in one of {', '.join(FORMATS)}")
     names, values = select(run, variables)
+    # String and Binary ports: their values, not the codes (a code the store lacks, as after a
+    # kill before its symbols were written, stays the number)
+    text = [i for i, name in enumerate(names) if run.units[run.names.index(name)] in TEXT_UNITS]
     columns: list[Any] = [values[:, i] for i in range(len(names))]
-    for i, name in enumerate(names):  # String and Binary ports: their values, not the codes
-        if run.units[run.names.index(name)] in TEXT_UNITS:
-            columns[i] = [run.symbols[int(c)] for c in values[:, i].tolist()]
+    for i in text:
+        columns[i] = [run.symbols.get(int(c), c) for c in values[:, i].tolist()]
     path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".csv":
-        cells = [[_cell(v) for v in c] if isinstance(c, list) else list(map(repr, c.tolist()))
-                 for c in columns]
         with path.open("w", newline="") as f:
             out = csv.writer(f)
             out.writerow(["t", *names])
-            out.writerows([repr(float(t)), *row]
-                          for t, row in zip(run.times, zip(*cells, strict=True)))
+            for n, (t, row) in enumerate(zip(run.times, values)):  # a row at a time
+                cells = list(map(repr, row.tolist()))
+                for i in text:
+                    cells[i] = _cell(columns[i][n])
+                out.writerow([repr(float(t)), *cells])
     elif suffix == ".parquet":
         import pandas as pd  # optional: cosimstep[parquet]
 
@@ -72,9 +75,12 @@ def write(run: StoredRun, path: str | Path, variables: Sequence[str] | None = No
     return path
 
 
-def _cell(value: str | bytes) -> str:
-    """A String value as it is, a Binary one in hexadecimal (CSV holds text)."""
-    return value.hex() if isinstance(value, bytes) else value
+def _cell(value: str | bytes | float) -> str:
+    """A String value as it is, a Binary one in hexadecimal (CSV holds text), a code the
+    store lacks as its number."""
+    if isinstance(value, bytes):
+        return value.hex()
+    return value if isinstance(value, str) else repr(value)
 
 
 def _matlab_column(column: Any) -> Any:

@@ -295,6 +295,7 @@ class Synchronous(Scheme):
         # every sub-model took the run's steps: one copy for all of them, as their times and
         # values are views of the run's (a system of thousands of models made a copy each)
         shared = steps.copy()
+        shared.flags.writeable = False  # (one model's cannot be changed alone)
         models = {n: ModelStats(c, accepted, rejected, 0, shared, times, values[:, columns])
                   for n, c, columns in zip(compiled.names, runner.calls.tolist(),
                                            compiled.output_slices)}

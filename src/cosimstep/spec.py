@@ -105,8 +105,8 @@ def parse(cls: type[BaseModel], body: Any, where: str, problems: list[Problem], 
           rest: bool = False) -> Any:
     """``cls`` validated from ``body``, or ``None`` with the reasons added to ``problems``.
 
-    ``rest``: where keys were refused, the section of the others (the refused at their
-    defaults) instead of ``None``, so that what is checked on the whole section is checked on
+    ``rest``: where the only problems are extra keys (none resembling a field), the section of
+    the others instead of ``None``, so that what is checked on the whole section is checked on
     them too: an unknown key in ``[master]`` hid eight bad values beside it. The refused keys
     are in ``problems`` already, so a run never starts from it."""
     if not isinstance(body, dict):
@@ -121,7 +121,12 @@ def parse(cls: type[BaseModel], body: Any, where: str, problems: list[Problem], 
             key = ".".join(str(p) for p in e["loc"])
             what, fix = _plain(e, keys, tuple(e["loc"][:-1]) in unknown)
             problems.append(Problem(f"{where}.{key}" if key else where, what, fix))
-        if not rest:
+        # the rest only past keys that are merely extra: a refused value, or a misspelt key
+        # standing for one (`nmae`), leaves its field at a default the rest would be judged
+        # against (multirate-only settings reported against a default Gauss-Seidel)
+        extra = [e for e in exc.errors() if e["type"] == "extra_forbidden"]
+        if not rest or len(extra) < len(exc.errors()) or any(
+                difflib.get_close_matches(str(e["loc"][-1]), keys, n=1) for e in extra):
             return None
         refused = {e["loc"][0] for e in exc.errors() if e["loc"]}
         try:

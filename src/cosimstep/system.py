@@ -363,6 +363,10 @@ class System:
             slices.append(slice(offset, offset + count))
             owners.extend([k] * count)
             offset += count
+        if len(out_names) != offset:  # two addresses alike: a model name with a '.' put
+            raise ConfigurationError([Problem(  # into `models` past `add`
+                "models", "two outputs have one address model.port",
+                "add models with System.add (a name without '.')")])
         by_target = {c.target: c for c in links}
         # every model's input table as a view into one array for all (a system of thousands of
         # models would otherwise spend most of its compile allocating arrays of one element)

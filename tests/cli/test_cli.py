@@ -524,6 +524,23 @@ def test_options_that_would_change_nothing_are_refused(examples, tmp_path):
     for args, words in cases:
         res = CliRunner().invoke(main, args)
         assert res.exit_code == 2 and words in res.output, (args, res.output)
+    # but algebraic loops are solved to --coupling-tol; a number is read as Python reads it;
+    # a start value stays a number
+    _helper_models(tmp_path)
+    (tmp_path / "loop.toml").write_text(
+        'until = 0.1\n[models.a]\ntype = "python"\nclass = "models.py:Gain"\n'
+        'parameters = { k = 0.5 }\n[models.b]\ntype = "python"\nclass = "models.py:Gain"\n'
+        'parameters = { k = 0.5 }\n[[connections]]\nfrom = "a.y"\nto = "b.u"\noffset = 1.0\n'
+        '[[connections]]\nfrom = "b.y"\nto = "a.u"\n')
+    loop = ["run", str(tmp_path / "loop.toml"), "--step", "0.05", "--no-store", "-q"]
+    res = CliRunner().invoke(main, [*loop, "--max-iterations", "3"])
+    assert "--max-iterations: sets" in res.output  # only an iteration reads it
+    for args in ([*loop, "--coupling-tol", "1e-12"],
+                 [*run, "--param", "l2=.5", "--no-store", "-q"]):
+        res = CliRunner().invoke(main, args)
+        assert res.exit_code == 0, (args, res.output)
+    res = CliRunner().invoke(main, [*run, "--start", "bar1.theta=true", "--no-store"])
+    assert res.exit_code == 2 and "--start bar1.theta=true" in res.output
     db = tmp_path / "r.db"
     assert CliRunner().invoke(main, [*run, "--out", str(db)]).exit_code == 0
     before = db.read_bytes()

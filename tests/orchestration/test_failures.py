@@ -219,3 +219,18 @@ def test_a_failure_crept_up_on_is_named_not_the_estimate(master, mode, words):
         assert words in r.message and "'room'" in r.message, (fail_at, r.message)
         assert "hmin = 1e-10 s" in r.message
         assert r.t_end == pytest.approx(fail_at, abs=1e-6)
+
+
+def test_a_resolvable_hmin_stop_is_not_blamed_on_an_earlier_failure():
+    """Only a stop where a step's share of tol is round-off is the failure's: a stop with a
+    resolvable share (a jump the master was not told of) keeps the estimate's message, however
+    recent the failure (a review found a 49-s trial failure blamed for a stop at 0.01 s)."""
+    from cosimstep.errors import ROUND_OFF, StepSizeError, still_failing
+
+    failure = (SubModelError("p", 29.8, "RuntimeError: step too long", 48.8), 78.6)
+    stop = StepSizeError("step size 0.005 s fell below hmin = 0.01 s")
+    assert still_failing(failure, 35.2, 1e-4 * 0.01 / 100.0, stop) is None
+    assert still_failing(failure, 80.0, 1e-18, stop) is None  # past the failed step's end
+    blamed = still_failing(failure, 35.2, ROUND_OFF / 10, stop)
+    assert blamed is not None and "step too long" in str(blamed)
+    assert "fell below hmin" in str(blamed)
