@@ -121,18 +121,24 @@ def parse(cls: type[BaseModel], body: Any, where: str, problems: list[Problem], 
             key = ".".join(str(p) for p in e["loc"])
             what, fix = _plain(e, keys, tuple(e["loc"][:-1]) in unknown)
             problems.append(Problem(f"{where}.{key}" if key else where, what, fix))
-        # the rest only past keys that are merely extra: a refused value, or a misspelt key
-        # standing for one (`nmae`), leaves its field at a default the rest would be judged
-        # against (multirate-only settings reported against a default Gauss-Seidel)
-        extra = [e for e in exc.errors() if e["type"] == "extra_forbidden"]
-        if not rest or len(extra) < len(exc.errors()) or any(
-                difflib.get_close_matches(str(e["loc"][-1]), keys, n=1) for e in extra):
-            return None
-        refused = {e["loc"][0] for e in exc.errors() if e["loc"]}
-        try:
-            return cls.model_validate({k: v for k, v in body.items() if k not in refused})
-        except ValidationError:
-            return None
+        return _rest(cls, body, exc, keys) if rest else None
+
+
+def _rest(cls: type[BaseModel], body: dict[str, Any], exc: ValidationError,
+          keys: list[str]) -> Any:
+    """``body`` validated without the keys ``exc`` refused, when they are merely extra (else
+    ``None``): a refused value, or a misspelt key standing for one (``nmae``), leaves its field
+    at a default the rest would be judged against (multirate-only settings reported against a
+    default Gauss-Seidel)."""
+    extra = [e for e in exc.errors() if e["type"] == "extra_forbidden"]
+    if len(extra) < len(exc.errors()) or any(
+            difflib.get_close_matches(str(e["loc"][-1]), keys, n=1) for e in extra):
+        return None
+    refused = {e["loc"][0] for e in extra if e["loc"]}
+    try:
+        return cls.model_validate({k: v for k, v in body.items() if k not in refused})
+    except ValidationError:
+        return None
 
 
 def _plain(error: Mapping[str, Any], keys: list[str], beside: bool) -> tuple[str, str]:
