@@ -11,6 +11,7 @@ import json
 import math
 import sqlite3
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -70,6 +71,9 @@ def _load(path: str, until: float | None = None) -> SystemSpec:
 @click.version_option(package_name="cosimstep")
 def main() -> None:
     """cosimstep: adaptive, multi-rate co-simulation of black-box sub-models."""
+    # a warning is a sentence for the user here, not a source line of cosimstep's
+    warnings.formatwarning = lambda message, category, *_, **__: \
+        f"{category.__name__}: {message}\n"
 
 
 @main.command()

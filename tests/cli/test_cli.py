@@ -594,3 +594,13 @@ def test_one_sub_models_text_parameter_from_the_command_line(tmp_path):
     assert res.exit_code == 2
     assert all(f"--param {p}: expected NAME=NUMBER" in res.output
                for p in ("m.mode=eco", "x=nan", 'y="1"')), res.output
+
+
+def test_rkf23_model_slopes_fall_back_to_the_fitted_cubic(examples):
+    """``--opt slopes=model`` where some sub-model gives no output derivatives: the thesis's
+    fitted cubic stands in (the run ended at t = 0 with KeyError 'model')."""
+    res = CliRunner().invoke(main, ["run", str(examples / "pump_failure.toml"), "--until", "5",
+                                    "--master", "gauss-seidel", "--controller", "rkf23",
+                                    "--tol", "1e-3", "--opt", "slopes=model", "--no-store",
+                                    "-q"])
+    assert res.exit_code == 0 and "ok — completed" in res.output, res.output

@@ -234,3 +234,19 @@ def test_a_resolvable_hmin_stop_is_not_blamed_on_an_earlier_failure():
     blamed = still_failing(failure, 35.2, ROUND_OFF / 10, stop)
     assert blamed is not None and "step too long" in str(blamed)
     assert "fell below hmin" in str(blamed)
+
+
+def test_a_multirate_run_whose_sub_model_fails_to_start_ends_failed_with_its_reason():
+    """A sub-model that raises in ``initialize`` under the multi-rate master: status failed
+    with its reason (the result's assembly crashed on tracks without a point: a reshape
+    ValueError, the reason lost)."""
+    from cosimstep import make_controller
+
+    class Unlicensed(_Room):
+        def initialize(self, t0: float) -> None:
+            raise RuntimeError("cannot open license file")
+
+    s = System().add("room", Unlicensed(1e9, "raise"))
+    r = simulate(s, 10.0, make_controller("pc", None, 1e-3), MasterOptions("multirate", 2))
+    assert r.status == "failed" and "cannot open license file" in r.message
+    assert r.models["room"].values.shape == (0, 1)
