@@ -118,7 +118,7 @@ def test_partner_trajectories_through_a_named_interpolation(mixed, method) -> No
 
 
 def test_multirate_refuses_what_it_cannot_run(mixed) -> None:
-    with pytest.raises(ValueError, match="with a controller.s error policy"):
+    with pytest.raises(ValueError, match=r"with a controller.s error policy"):
         simulate(mixed.system, 1.0, Fixed(0.01), MULTIRATE)
     system = System().add("src", Integrator()).add("gain", Gain(2.0))
     system.connect("src.x", "gain.u")
