@@ -125,6 +125,7 @@ def simulate(
         and no repeat starts where what is left could not pay for a run like the first.
         ``False``: one run, whatever its estimate.
     """
+    _check_types(system, controller, master, reference)
     budget = Budget(max_wall, max_calls)
     problems = estimate_problems(estimate, controller, master, resume)
     if problems:
@@ -326,6 +327,25 @@ def estimate_problems(estimate: str, controller: Controller, master: MasterOptio
         out.append(("'richardson' keeps a companion state that a checkpoint does not hold",
                     "a run with it cannot be resumed: run it again without --resume"))
     return out
+
+
+def _check_types(system: Any, controller: Any, master: Any, reference: Any) -> None:
+    """``TypeError`` naming every argument of :func:`simulate` of the wrong kind, with what
+    to give instead (a string where an object belongs raised an ``AttributeError`` from deep
+    inside: ``master="gauss-seidel"``)."""
+    wrong = [f"`{name}` must be {kind}, got {type(value).__name__} {value!r:.60} ({fix})"
+             for name, value, cls, kind, fix in (
+                 ("system", system, System, "a System", "System().add(...).connect(...), or "
+                  "load_system(path).system"),
+                 ("controller", controller, Controller, "a Controller",
+                  "e.g. Fixed(0.01) or make_controller('pc', None, 1e-4)"),
+                 ("master", master, (MasterOptions, type(None)), "MasterOptions or None",
+                  "e.g. MasterOptions('gauss-seidel', 2)"),
+                 ("reference", reference, (Reference, type(None)), "a Reference or None",
+                  "load_system(path).reference"))
+             if not isinstance(value, cls)]
+    if wrong:
+        raise TypeError("; ".join(wrong))
 
 
 def _simulate(system: System, until: float, controller: Controller,

@@ -250,3 +250,17 @@ def test_a_multirate_run_whose_sub_model_fails_to_start_ends_failed_with_its_rea
     r = simulate(s, 10.0, make_controller("pc", None, 1e-3), MasterOptions("multirate", 2))
     assert r.status == "failed" and "cannot open license file" in r.message
     assert r.models["room"].values.shape == (0, 1)
+
+
+def test_simulate_names_every_argument_of_the_wrong_kind(examples):
+    """A string where a controller, master or reference belongs: one TypeError naming each
+    and what to give (it was an AttributeError from deep inside)."""
+    from cosimstep import load_system
+
+    spec = load_system(examples / "double_pendulum_slow.toml")
+    with pytest.raises(TypeError) as info:
+        simulate(spec.system, 1.0, "pc", master="gauss-seidel", reference="x")
+    text = str(info.value)
+    for words in ("`controller` must be a Controller", "`master` must be MasterOptions",
+                  "`reference` must be a Reference", "make_controller('pc', None, 1e-4)"):
+        assert words in text, text
