@@ -441,14 +441,14 @@ def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | N
     opts = dataclasses.replace(opts, **strong)
     problems = [Problem("master", p, "see `cosimstep run --help`") for p in opts.problems()]
     if opts.coupling == "explicit":  # what only an iteration reads would change nothing
-        loops = bool(spec.system.loops())  # (algebraic loops are solved to coupling_tol)
+        given = [(flag, key) for flag, key in (("--coupling-tol", "coupling_tol"),
+                                               ("--max-iterations", "max_iterations"))
+                 if (coupling or {}).get(key) is not None]
+        if given and given[0][1] == "coupling_tol" and spec.system.loops():
+            given = given[1:]  # algebraic loops are solved to coupling_tol
         problems += [Problem(flag, "sets the iteration of strong coupling; this run's coupling "
                              "is explicit", "add --coupling fixed-point|aitken|iqn-ils, or "
-                             "leave it out")
-                     for flag, key in (("--coupling-tol", "coupling_tol"),
-                                       ("--max-iterations", "max_iterations"))
-                     if (coupling or {}).get(key) is not None
-                     and not (loops and key == "coupling_tol")]
+                             "leave it out") for flag, _ in given]
     if problems:
         _config_exit(ConfigurationError(problems, spec.source))
     return opts
