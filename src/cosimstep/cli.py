@@ -661,10 +661,10 @@ def plot_sweep_command(db: str, x: str | None, work_precision: bool, y: str | No
     bad = output_problems("-o", output)
     if not Path(db).is_file():
         bad.append(Problem("DB", f"no file {db}", "give the --out of a cosimstep sweep"))
-    elif "sweep_run" not in _tables(db):
+    elif "sweep_run" not in (tables := _tables(db)):
         bad.append(Problem("DB", f"{db} holds no sweep table" + (
             " (it is a results store: see `cosimstep runs`, `plot`)"
-            if "run" in _tables(db) else ""), "give the --out of a cosimstep sweep"))
+            if "run" in tables else ""), "give the --out of a cosimstep sweep"))
     if bad:
         _config_exit(ConfigurationError(bad, "the command line"))
     table = SweepTable(db)

@@ -310,8 +310,9 @@ class Multirate:
         tr = self.tracks[owner]
         t0 = float(at[0])
         lo, hi = self._segment_bounds(t0 + 1e-12 * max(1.0, abs(t0)), owner)
-        if not tr.discrete and tr.index not in self.changing:  # nothing held: every column
-            window = self._window(tr, at, lo, hi, stencil)     # read alike, as below
+        plain = not tr.discrete and tr.index not in self.changing  # nothing held: every
+        if plain:                                                  # column read alike
+            window = self._window(tr, at, lo, hi, stencil)
             if window is not None:
                 return self._fill(tr, cols, at, *window), window[2]
         out = np.empty((len(at), len(cols)))
@@ -322,7 +323,8 @@ class Multirate:
         rest = [c for c in range(len(cols)) if c not in held]
         if not rest:
             return out, False
-        window = self._window(tr, at, lo, hi, stencil)
+        if not plain:  # (a plain owner's window was found None above)
+            window = self._window(tr, at, lo, hi, stencil)
         if window is None:
             # the window spans several of the owner's steps: one stencil per point, each
             # around its own time (a single stencil at the window's end would extrapolate
