@@ -96,6 +96,7 @@ class _Verdict:
     spent_in: float
     ratio: float = 0.0  # the consumer-facing error ratio (interpolation of the trajectory)
     power: float = 4.0  # the power of h that ratio scales with on a smooth trajectory
+    lag: float = 0.0  # the lasting error of a receiver that holds its inputs (hold_lag)
 
 
 @dataclass
@@ -113,6 +114,10 @@ class Track:
     pending: tuple | None = None  # (token, t0, h, assumed inputs at NODES)
     gain: float | None = None  # measured: scaled output change / (h · scaled input change)
     gain_h: float = math.nan  # the step the gain was measured on
+    # a receiver that holds its inputs: scaled output change per scaled half-step swing of an
+    # input (down in the first half, up in the second) / h^2 (Multirate._refresh_gain)
+    moment: float = 0.0
+    lag: float = 0.0  # the largest lasting error of holding its inputs so far (hold_lag)
     gain_checks: int = 0  # calls that measured the gain again (Multirate._refresh_gain)
     probes: int = 0  # calls made by the error memory's probes (race_memory)
     calls: int = 0
@@ -194,6 +199,12 @@ class Multirate:
         self.cuts: list[list[float]] = [[] for _ in system.models]
         self.resync = resync
         self.reach = [self._downstream(k) for k in range(len(system.models))]
+        # the sub-models that hold each input at one value over a step (no input derivatives):
+        # what they are fed is judged by the held value's effect, not the cubic's
+        # (hold_deviation); a discrete-event model's outputs do not follow its inputs
+        self.holds = {k for k, m in enumerate(system.models)
+                      if len(system.src[k]) and m.capabilities.max_input_derivative_order == 0
+                      and not self.tracks[k].discrete}
         self._discrete_parts()
         self.state_fired: list[Event] = []  # state events found inside steps, in order found
         self.until = math.inf
@@ -443,6 +454,89 @@ class Multirate:
         # the mean over the nodes as np.mean takes it (their sum over their count)
         return float((np.add.reduce(deviation, axis=0) / deviation.shape[0]).max())
 
+    def hold_deviation(self, k: int, t: float, h: float, inputs: np.ndarray
+                       ) -> tuple[float, float]:
+        """What holding the mid-step value of its inputs over ``[t, t + h]`` leaves model
+        ``k`` (one of :attr:`holds`) of the partners' trajectories, scaled like the inputs:
+        the largest |mean| of the deviation over the step, and the largest swing of it from
+        the first half to the second (half the difference at 5/6 and 1/6 of the step).
+
+        Why two numbers: the receiver's state answers the deviation's mean (a constant
+        error) and, through its own dynamics within the step, its swing (a ramp held flat).
+        Holding the mid-step value is a midpoint rule, so the mean falls like ``h^2``; the
+        swing falls like ``h``, but what it costs depends on how fast the receiver is — a
+        slow lag averages it away, a fast oscillator follows it — which only the receiver
+        can tell (:meth:`_refresh_gain` measures it). The mean at :data:`BETWEEN` (a
+        three-panel midpoint rule) is 8/9 of the exact mean's leading term."""
+        held = _midstep(t, h, inputs)
+        true = self._inputs(k, t + BETWEEN * h)[0]
+        scale = self.tracks[k].policy.scale(true).max(axis=0)
+        rounding = ROUNDING * np.maximum(np.abs(held), np.abs(true)).max(axis=0)
+        deviation = true - held
+        mean = np.add.reduce(deviation, axis=0) / deviation.shape[0]
+        swing = 0.5 * (deviation[-1] - deviation[0])
+        return (float((np.maximum(np.abs(mean) - rounding, 0.0) / scale).max()),
+                float((np.maximum(np.abs(swing) - rounding, 0.0) / scale).max()))
+
+    def fed_error(self, tr: Track, t: float, h: float, inputs: np.ndarray,
+                  gain: float) -> float:
+        """The error (scaled like the outputs) that what ``tr`` is fed over ``[t, t + h]``
+        leaves in its outputs: its sensitivity ``gain`` × ``h`` × :meth:`input_resolution`;
+        for a receiver that holds its inputs, the same with the mean of :meth:`hold_deviation`
+        plus its swing × the measured :attr:`Track.moment` × ``h^2``: the response to a
+        swing grows like ``h^2`` where the receiver is slower than the step (its rate × ``h``
+        × the gain's ``h``), and is at most what a constant error over the step gives (a
+        receiver much faster than the step follows the swing, gain × ``h``)."""
+        k = tr.index
+        if k not in self.holds:
+            return gain * h * self.input_resolution(k, t, h, inputs)
+        return gain * h * self.hold_deviation(k, t, h, inputs)[0]
+
+    def hold_lag(self, tr: Track, t: float, h: float, inputs: np.ndarray, gain: float
+                 ) -> float:
+        """The lasting error (scaled like the outputs) that holding its inputs over steps of
+        ``h`` leaves a receiver: a ramp held flat at its mid-step value lags.
+
+        A lag ``x' = -a x + b u`` fed a ramp held at mid-step values settles, at the ends of
+        its steps, at a distance from the exact response that does not grow with time: ``b``
+        × slope × ``h^2/12`` for a receiver slower than the step (``a h`` small), the static
+        response × slope × ``h/2`` for one much faster. In the measured quantities — the
+        gain, the swing of :meth:`hold_deviation` (slope × ``h/3``) and the receiver's
+        measured answer to a swing relative to its gain × ``h`` (``rho``: ``a h/4`` when slow,
+        1 when fast, :meth:`_swing_response`) — that is gain × ``h`` × swing × ``kappa``
+        with ``kappa`` from 1/4 to 3/2, joined linearly in ``rho``. It is an error that
+        persists rather than one that adds up, so it is met against tol itself, not a share
+        of it (:meth:`_fed_ratio`)."""
+        swing = self.hold_deviation(tr.index, t, h, inputs)[1]
+        rho = min(1.0, tr.moment * h / gain) if gain > 0.0 else 1.0
+        return gain * h * swing * (0.25 + 1.25 * rho)
+
+    def _fed_ratio(self, tr: Track, t: float, h: float, inputs: np.ndarray, y: np.ndarray,
+                   gain: float) -> tuple[float, int, float, float]:
+        """What ``tr``'s step ``[t, t + h]`` failed to resolve of its inputs, against what it
+        may: the ratio, the power of ``h`` it falls with, the error that adds up
+        (:meth:`fed_error`; scaled like the outputs) and the lasting one as a share of tol.
+        For a receiver that holds its inputs the ratio is the larger of the two (the lag,
+        :meth:`hold_lag`, power 2), whichever asks for the shorter step."""
+        pol = tr.policy
+        fed = self.fed_error(tr, t, h, inputs, gain)
+        ratio, _ = pol.ratio(fed * pol.scale(y), y, h)
+        power = self.resolution_power(tr.index)
+        lasting = 0.0
+        if tr.index in self.holds:
+            lag = self.hold_lag(tr, t, h, inputs, gain)
+            lasting = float(np.max(lag * pol.scale(y) / pol.norm_scale(y)))
+            if lasting > 1.0 and lasting ** 0.5 > max(ratio, 1.0) ** (1.0 / power):
+                ratio, power = lasting, 2
+        return ratio, power, fed, lasting
+
+    def resolution_power(self, k: int) -> int:
+        """How the error :meth:`fed_error` estimates falls with the receiver's step ``h``:
+        ``h^5`` for a cubic it follows (deviation ``h^4`` integrated over ``h``), ``h^3`` for
+        a held mid-step value (its mean ``h^2`` over ``h``; its swing ``h`` times a response
+        that falls like ``h^2`` where the receiver is slower than the step)."""
+        return 3 if k in self.holds else 5
+
     # -- calls -----------------------------------------------------------------------------------
     def _guard(self, k: int, t: float, fn: Any, *args: Any, h: float | None = None) -> Any:
         """A sub-model call through the synchronous master's guard (errors named, time-outs)."""
@@ -557,7 +651,11 @@ class Multirate:
         tr.pending = None
         actual, _ = self.inputs_over(k, t0, h)
         scale = tr.policy.scale(actual)
-        delta = float(np.max(np.mean(np.abs(actual - assumed) / scale, axis=0)))
+        if k in self.holds:  # what it was fed: the mid-step values
+            change = _midstep(t0, h, actual) - _midstep(t0, h, assumed)
+            delta = float(np.max(np.abs(change) / scale.max(axis=0)))
+        else:
+            delta = float(np.max(np.mean(np.abs(actual - assumed) / scale, axis=0)))
         tr.verified += 1
         if delta == 0.0:
             return False
@@ -570,9 +668,12 @@ class Multirate:
         if np.any(change > 1e3 * np.finfo(float).eps
                                   * np.maximum(np.abs(tr.rows[-1]), 1e-300)):
             gain = float(np.max(change / tr.policy.scale(tr.rows[-1]))) / (h * delta)
-            tr.gain = gain if tr.gain is None or _outside(h, tr.gain_h) \
-                else max(gain, 0.5 * tr.gain)
-            tr.gain_h = h
+            if k not in self.holds:
+                tr.gain = gain if tr.gain is None or _outside(h, tr.gain_h) \
+                    else max(gain, 0.5 * tr.gain)
+                tr.gain_h = h
+            elif pieces == 1 and tr.gain is None:
+                tr.gain, tr.gain_h = gain, h
         if rounds >= MAX_RESYNC:
             return False
         moved = float(np.max(change / tr.policy.scale(tr.rows[-1])))
@@ -679,7 +780,9 @@ class Multirate:
         points never is. A sub-model that fails on a shifted step loses the measurement, not
         the run (one that hangs still ends it)."""
         tr = self.tracks[k]
-        if tr.gain is None or tr.discrete or not inputs.size or not _outside(h, tr.gain_h):
+        hold = k in self.holds
+        if (tr.gain is None and not hold) or tr.discrete or not inputs.size \
+                or not _outside(h, tr.gain_h):
             return
         model = self.system.models[k]
         after = self._guard(k, t, model.save_state)
@@ -691,6 +794,7 @@ class Multirate:
                 shifted[:, i] += scale[:, i]
                 tr.gain_checks += 1
                 response += np.abs(self.run_step(k, t, h, shifted) - y)
+            swing = self._swing_response(k, token, t, h, inputs) if hold else None
         except SubModelError as exc:
             if exc.hung:
                 raise
@@ -699,6 +803,36 @@ class Multirate:
         self._guard(k, t, model.restore_state, after)
         tr.gain = float(np.max(response / tr.policy.scale(y))) / h
         tr.gain_h = h
+        if swing is not None:
+            tr.moment = float(np.max(swing / tr.policy.scale(y))) / (h * h)
+
+    def _swing_response(self, k: int, token: Any, t: float, h: float,
+                        inputs: np.ndarray) -> np.ndarray:
+        """What a receiver that holds its inputs answers to a swing of each input in turn
+        over ``[t, t + h]`` (from the state ``token``): the step in two halves, the input one
+        tolerance unit below its held value in the first half and one above in the second,
+        against the same halves without the swing (two calls, then two per input; the
+        responses added with the worst signs, as for the gain). A ramp of the input that the
+        hold flattens is such a swing (:meth:`hold_deviation`)."""
+        tr = self.tracks[k]
+        held = _midstep(t, h, inputs)
+        unit = tr.policy.scale(inputs).max(axis=0)
+        half = 0.5 * h
+
+        def halves(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+            self._guard(k, t, self.system.models[k].restore_state, token)
+            tr.gain_checks += 2
+            self.run_step(k, t, half, np.tile(first, (len(NODES), 1)))
+            return self.run_step(k, t + half, h - half, np.tile(second, (len(NODES), 1)))
+
+        plain = halves(held, held)
+        response = np.zeros_like(plain)
+        for i in range(len(held)):
+            down, up = held.copy(), held.copy()
+            down[i] -= unit[i]
+            up[i] += unit[i]
+            response += np.abs(halves(down, up) - plain)
+        return response
 
     def _resynchronize(self, k: int, t0: float, moved: float, rounds: int) -> bool:
         """Roll back the consumers of ``k`` that read its provisional trajectory after ``t0``
@@ -782,13 +916,10 @@ class Multirate:
         actually happened (they were partly extrapolated when the step was accepted: a partner
         that had not yet moved after an event looked constant). 1: the step can stand."""
         gain = tr.gain if tr.gain is not None else INITIAL_GAIN
-        fed = gain * h * self.input_resolution(tr.index, t0, h, actual)
-        ratio, _ = tr.policy.ratio(fed * tr.policy.scale(y), y, h)
+        ratio, power, _, _ = self._fed_ratio(tr, t0, h, actual, y, gain)
         if ratio <= 1.0:
             return 1
-        # the deviation of a cubic through four samples falls like h^4, the error it makes
-        # in the receiver like h^5
-        return int(min(MAX_PIECES, math.ceil((ratio / tr.policy.safety) ** 0.2)))
+        return int(min(MAX_PIECES, math.ceil((ratio / tr.policy.safety) ** (1 / power))))
 
     def _rerun(self, tr: Track, first: int, pieces: int,
                inputs: np.ndarray | None) -> int | None:
@@ -850,6 +981,7 @@ class Multirate:
                     continue
                 tr.spent_out += verdict.spent_out
                 tr.spent_in += verdict.spent_in
+                tr.lag = max(tr.lag, verdict.lag)
                 # a piece's motion is not read (h = 0: kept as they are); read against the
                 # motion before the re-run, the quarter car's pieces through the road step
                 # became shifts estimated at 2,800 x tol (0.12 x delivered)
@@ -878,13 +1010,10 @@ class Multirate:
         (:meth:`input_resolution`, no call needed), else ``None``."""
         if step <= tr.policy.hmin:
             return None
-        fed = gain * step * self.input_resolution(tr.index, t, step, u)
-        ratio, _ = tr.policy.ratio(fed * tr.policy.scale(tr.rows[-1]), tr.rows[-1], step)
+        ratio, power, _, _ = self._fed_ratio(tr, t, step, u, tr.rows[-1], gain)
         if ratio <= 1.0:
             return None
-        # the deviation of a cubic through four samples falls like h^4, the error it makes
-        # in the receiver like h^5
-        return step * max(0.1, tr.policy.safety * ratio ** -0.2)
+        return step * max(0.1, tr.policy.safety * ratio ** (-1 / power))
 
     # -- one step of the sub-model farthest behind -----------------------------------------------
     def advance(self, k: int, landing: float) -> bool:
@@ -932,6 +1061,7 @@ class Multirate:
         does)."""
         tr.spent_out = fade * tr.spent_out + verdict.spent_out
         tr.spent_in = fade * tr.spent_in + verdict.spent_in
+        tr.lag = max(tr.lag, verdict.lag)
         if fade < 1.0:
             self._peak = max(self._peak, self._estimate_now())
 
@@ -1204,19 +1334,19 @@ class Multirate:
             ratio, i = pol.ratio(gain * h * e, y, h)
             power = 4 + pol.extra_power
         own_gain = tr.gain if tr.gain is not None else INITIAL_GAIN
-        fed = own_gain * h * self.input_resolution(tr.index, t, h, inputs)
-        unresolved, _ = pol.ratio(fed * pol.scale(y), y, h)
+        unresolved, fed_power, fed, lasting = self._fed_ratio(tr, t, h, inputs, y, own_gain)
         why = self._rejection(tr, i, e, gain, ratio, unresolved, revealed)
         # the step control's memory (PI, mean step) sees only the steps that are kept
         h_next = pol.next_step(h, ratio, power, why is None)
         if unresolved > 1.0:
-            h_next = min(h_next, pol.next_step(h, unresolved, 5 + pol.extra_power, False))
+            h_next = min(h_next, pol.next_step(h, unresolved, fed_power + pol.extra_power,
+                                               False))
         if revealed is not None and why is not None:
             h_next = min(h_next, 0.5 * h)
         norm = pol.norm_scale(y)  # the norm the error is met in (StepPolicy.norm_scale)
         spent_out = 0.0 if gain == 0.0 or startup else \
             float(np.max(gain * h * e / (norm / pol.tol)))
-        return _Verdict(h_next, why, spent_out, fed * pol.tol, ratio, power)
+        return _Verdict(h_next, why, spent_out, fed * pol.tol, ratio, power, lasting * pol.tol)
 
     def _rejection(self, tr: Track, i: int, e: np.ndarray, gain: float, ratio: float,
                    unresolved: float, revealed: np.ndarray | None) -> str | None:
@@ -1371,8 +1501,9 @@ class Multirate:
         return max(self._peak, self._estimate_now())
 
     def _estimate_now(self) -> float:
+        # a lasting error of a receiver that holds its inputs (hold_lag) adds to what it sums
         totals = [tr.spent_in + sum(self.tracks[s].spent_out for s in range(len(self.tracks))
-                                    if tr.index in self.consumers[s])
+                                    if tr.index in self.consumers[s]) + tr.lag
                   for tr in self.tracks]
         return max(totals, default=0.0)
 
@@ -1387,6 +1518,12 @@ class Multirate:
 
 
 ROUNDING = 64 * np.finfo(float).eps
+
+
+def _midstep(t: float, h: float, inputs: np.ndarray) -> np.ndarray:
+    """The value a receiver that holds its inputs gets over ``[t, t + h]`` (inputs at
+    :data:`NODES`): the cubic through them at mid-step, as :meth:`Multirate.run_step` gives it."""
+    return evaluate(taylor_coefficients(list(t + NODES * h), inputs, t, 3), 0.5 * h)
 """Relative size below which a deviation between the cubic a sub-model follows and its
 partners' trajectory is rounding: both are evaluated from the same stored values through a
 handful of multiplications (a cubic's Lagrange weights sum to 1 with magnitudes of a few), so
