@@ -360,18 +360,6 @@ class MultiRate(Scheme):
             raise ValueError("the multirate master steps every sub-model with a controller's "
                              "error policy (pc, corrector, defect, doubling, embedded); "
                              f"'{controller.name}' has none")
-        holding = [n for n, m, src in zip(compiled.names, compiled.models, compiled.src)
-                   if len(src) and m.capabilities.max_input_derivative_order == 0
-                   and not isinstance(m, DiscreteEventModel)]  # (events hold by nature)
-        if holding:
-            warnings.warn(
-                f"multirate: {', '.join(holding)} hold their inputs over a step (no input "
-                "derivatives: a Python sub-model's default, plain FMI 2 doStep, FMI 3 "
-                "co-simulation, pythonfmu); the "
-                "multi-rate error control judges the input curves they do not follow, so the "
-                "error can exceed tol without its estimate showing it (two FMI 3 pendulum bars: "
-                "157-622 x tol, estimate 1-1.6 x tol). The default master (Gauss-Seidel, pc) "
-                "judges such steps by step doubling.", stacklevel=2)
         h0 = getattr(controller, "h0", None) or 1e-4 * (until - t0)
         # the error memory is probed as the controller would probe it (pc: every 20 accepted
         # steps once known, probe_every=0 off; the other controllers do not probe)
