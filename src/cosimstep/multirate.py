@@ -481,12 +481,9 @@ class Multirate:
     def fed_error(self, tr: Track, t: float, h: float, inputs: np.ndarray,
                   gain: float) -> float:
         """The error (scaled like the outputs) that what ``tr`` is fed over ``[t, t + h]``
-        leaves in its outputs: its sensitivity ``gain`` × ``h`` × :meth:`input_resolution`;
-        for a receiver that holds its inputs, the same with the mean of :meth:`hold_deviation`
-        plus its swing × the measured :attr:`Track.moment` × ``h^2``: the response to a
-        swing grows like ``h^2`` where the receiver is slower than the step (its rate × ``h``
-        × the gain's ``h``), and is at most what a constant error over the step gives (a
-        receiver much faster than the step follows the swing, gain × ``h``)."""
+        leaves in its outputs and that adds up over the run: its sensitivity ``gain`` × ``h``
+        × :meth:`input_resolution`; for a receiver that holds its inputs, × the mean of
+        :meth:`hold_deviation` instead (the swing's lasting error is :meth:`hold_lag`)."""
         k = tr.index
         if k not in self.holds:
             return gain * h * self.input_resolution(k, t, h, inputs)
@@ -533,8 +530,7 @@ class Multirate:
     def resolution_power(self, k: int) -> int:
         """How the error :meth:`fed_error` estimates falls with the receiver's step ``h``:
         ``h^5`` for a cubic it follows (deviation ``h^4`` integrated over ``h``), ``h^3`` for
-        a held mid-step value (its mean ``h^2`` over ``h``; its swing ``h`` times a response
-        that falls like ``h^2`` where the receiver is slower than the step)."""
+        a held mid-step value (its mean ``h^2`` over ``h``)."""
         return 3 if k in self.holds else 5
 
     # -- calls -----------------------------------------------------------------------------------
@@ -777,12 +773,17 @@ class Multirate:
         input would add them (inputs can act against each other: a pendulum bar's partner angle
         and rate), divided by ``h``, then back to where it was. A gain is otherwise only
         measured when a pending step is corrected, which a consumer that meets its partners'
-        points never is. A sub-model that fails on a shifted step loses the measurement, not
-        the run (one that hangs still ends it)."""
+        points never is. A receiver that holds its inputs is measured from its first step on,
+        with its answer to a swing beside the gain (:meth:`_swing_response`, :meth:`hold_lag`).
+        A sub-model that fails on a shifted step loses the measurement, not the run (one that
+        hangs still ends it)."""
         tr = self.tracks[k]
         hold = k in self.holds
-        if (tr.gain is None and not hold) or tr.discrete or not inputs.size \
-                or not _outside(h, tr.gain_h):
+        # a receiver that holds its inputs is measured from its first step: its gain from a
+        # correction is biased (Multirate.verify) and its swing response comes only from here
+        measured = tr.gain is not None
+        if tr.discrete or not inputs.size or (measured and not _outside(h, tr.gain_h)) \
+                or not (measured or hold):
             return
         model = self.system.models[k]
         after = self._guard(k, t, model.save_state)
