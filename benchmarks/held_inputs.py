@@ -73,8 +73,16 @@ def _cell(row: dict) -> str:
     return f"{mark}{ratio:.3g}{mark} / {est:.2g} / {row['calls']:,}{late}"
 
 
-def _outside(rows: list[dict]) -> int:
-    return sum(1 for r in rows if r["status"] == "ok" and not 0.1 <= r["err"] / r["tol"] <= 10)
+def _summary(rows: list[dict]) -> str:
+    """How many of ``rows`` (one master's) delivered outside [0.1, 10] × tol, and how many
+    ended otherwise than ``ok`` (a timed-out run's error is what it reached so far)."""
+    done = [r for r in rows if r["status"] in ("ok", "timed_out")]
+    outside = sum(1 for r in done if not 0.1 <= r["err"] / r["tol"] <= 10)
+    estimates = sum(1 for r in done if r.get("estimate") and r["err"] > 0
+                    and not 0.2 <= r["estimate"] / r["err"] <= 5)
+    other = sum(1 for r in rows if r["status"] != "ok")
+    return (f"{outside} of {len(rows)} cells outside [0.1, 10] × tol, estimates outside "
+            f"[0.2, 5] × the error in {estimates}; {other} not `ok` (timed out or failed)")
 
 
 def document(rows: list[dict], minutes: float) -> str:
@@ -93,8 +101,7 @@ def document(rows: list[dict], minutes: float) -> str:
         cells = [_cell(by[(name, m, t)]) if (name, m, t) in by else "" for m in MASTERS
                  for t in TOLS]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    lines += [""] + [f"- {m}: {_outside([r for r in rows if r['master'] == m])} of "
-                     f"{sum(1 for r in rows if r['master'] == m)} cells outside [0.1, 10]."
+    lines += [""] + [f"- {m}: {_summary([r for r in rows if r['master'] == m])}."
                      for m in MASTERS]
     lines += ["", MARK_END]
     return "\n".join(lines)
@@ -105,7 +112,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--problems", help="comma-separated suite problems (default: all)")
     ap.add_argument("--masters", help="comma-separated: multirate, pc (default: both)")
     ap.add_argument("--no-write", action="store_true", help="do not touch docs/benchmarks.md")
+    ap.add_argument("--from-results", type=float, metavar="MINUTES",
+                    help="write the section from the saved rows (benchmarks/results) instead "
+                         "of running; MINUTES: how long that run took")
     args = ap.parse_args(argv)
+    if args.from_results is not None:
+        text = document(json.loads(RESULTS.read_text()), args.from_results)
+        write_section(ROOT / "docs" / "benchmarks.md", text, MARK_BEGIN, MARK_END)
+        return
     problems = args.problems.split(",") if args.problems else list(suite.PROBLEMS)
     masters = args.masters.split(",") if args.masters else list(MASTERS)
     jobs = [(p, m, t) for p in problems for m in masters for t in TOLS]
