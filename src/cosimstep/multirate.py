@@ -25,7 +25,10 @@ controllers (:class:`~cosimstep.controllers.StepPolicy`). Grey-box sub-models ar
 for steps too long to resolve their own trajectory (aliasing), which no sample-based estimate
 can see. How long an error persists in the coupled system (its *error memory*) is measured as
 the synchronous ``pc`` measures it, by probes made after bringing the sub-models to one time
-(:mod:`cosimstep.race_memory`); the tolerance is then shared over that memory.
+(:mod:`cosimstep.race_memory`); the tolerance is then shared over that memory. A sub-model that
+holds its inputs over a step (no input derivatives) is judged by what it holds — the mean of
+the held value's deviation and the lag a held ramp leaves (:meth:`Multirate.hold_deviation`,
+:meth:`Multirate.hold_lag`) — and its sensitivities are measured by probes from its first step.
 """
 
 from __future__ import annotations
@@ -116,9 +119,9 @@ class Track:
     gain_h: float = math.nan  # the step the gain was measured on
     # a receiver that holds its inputs: scaled output change per scaled half-step swing of an
     # input (down in the first half, up in the second) / h^2 (Multirate._refresh_gain)
-    moment: float = 0.0
+    moment: float = math.nan  # nan: not measured yet; inf: its probe failed (taken as fast)
     lag: float = 0.0  # the largest lasting error of holding its inputs so far (hold_lag)
-    gain_checks: int = 0  # calls that measured the gain again (Multirate._refresh_gain)
+    gain_checks: int = 0  # calls that measured the gain (and a swing response) again
     probes: int = 0  # calls made by the error memory's probes (race_memory)
     calls: int = 0
     accepted: int = 0
@@ -203,8 +206,8 @@ class Multirate:
         # what they are fed is judged by the held value's effect, not the cubic's
         # (hold_deviation); a discrete-event model's outputs do not follow its inputs
         self.holds = {k for k, m in enumerate(system.models)
-                      if len(system.src[k]) and m.capabilities.max_input_derivative_order == 0
-                      and not self.tracks[k].discrete}
+                      if m.capabilities.max_input_derivative_order == 0
+                      and bool(np.any(system.a[k] != 0.0)) and not self.tracks[k].discrete}
         self._discrete_parts()
         self.state_fired: list[Event] = []  # state events found inside steps, in order found
         self.until = math.inf
@@ -489,8 +492,8 @@ class Multirate:
             return gain * h * self.input_resolution(k, t, h, inputs)
         return gain * h * self.hold_deviation(k, t, h, inputs)[0]
 
-    def hold_lag(self, tr: Track, t: float, h: float, inputs: np.ndarray, gain: float
-                 ) -> float:
+    @staticmethod
+    def hold_lag(tr: Track, h: float, swing: float, gain: float) -> float:
         """The lasting error (scaled like the outputs) that holding its inputs over steps of
         ``h`` leaves a receiver: a ramp held flat at its mid-step value lags.
 
@@ -503,9 +506,10 @@ class Multirate:
         1 when fast, :meth:`_swing_response`) — that is gain × ``h`` × swing × ``kappa``
         with ``kappa`` from 1/4 to 3/2, joined linearly in ``rho``. It is an error that
         persists rather than one that adds up, so it is met against tol itself, not a share
-        of it (:meth:`_fed_ratio`)."""
-        swing = self.hold_deviation(tr.index, t, h, inputs)[1]
-        rho = min(1.0, tr.moment * h / gain) if gain > 0.0 else 1.0
+        of it (:meth:`_fed_ratio`). Until the swing response is measured the receiver is
+        taken as fast (``rho`` = 1)."""
+        measured = gain > 0.0 and not math.isnan(tr.moment)
+        rho = min(1.0, tr.moment * h / gain) if measured else 1.0
         return gain * h * swing * (0.25 + 1.25 * rho)
 
     def _fed_ratio(self, tr: Track, t: float, h: float, inputs: np.ndarray, y: np.ndarray,
@@ -516,13 +520,16 @@ class Multirate:
         For a receiver that holds its inputs the ratio is the larger of the two (the lag,
         :meth:`hold_lag`, power 2), whichever asks for the shorter step."""
         pol = tr.policy
-        fed = self.fed_error(tr, t, h, inputs, gain)
-        ratio, _ = pol.ratio(fed * pol.scale(y), y, h)
-        power = self.resolution_power(tr.index)
-        lasting = 0.0
-        if tr.index in self.holds:
-            lag = self.hold_lag(tr, t, h, inputs, gain)
-            lasting = float(np.max(lag * pol.scale(y) / pol.norm_scale(y)))
+        lasting, power = 0.0, self.resolution_power(tr.index)
+        if tr.index not in self.holds:
+            fed = self.fed_error(tr, t, h, inputs, gain)
+            ratio, _ = pol.ratio(fed * pol.scale(y), y, h)
+        else:
+            mean, swing = self.hold_deviation(tr.index, t, h, inputs)
+            fed = gain * h * mean
+            ratio, _ = pol.ratio(fed * pol.scale(y), y, h)
+            lag = self.hold_lag(tr, h, swing, gain)
+            lasting = float(np.max(lag * pol.scale(y) / pol.norm_scale(y))) if y.size else 0.0
             if lasting > 1.0 and lasting ** 0.5 > max(ratio, 1.0) ** (1.0 / power):
                 ratio, power = lasting, 2
         return ratio, power, fed, lasting
@@ -782,8 +789,8 @@ class Multirate:
         # a receiver that holds its inputs is measured from its first step: its gain from a
         # correction is biased (Multirate.verify) and its swing response comes only from here
         measured = tr.gain is not None
-        if tr.discrete or not inputs.size or (measured and not _outside(h, tr.gain_h)) \
-                or not (measured or hold):
+        due = not measured or _outside(h, tr.gain_h) or (hold and math.isnan(tr.moment))
+        if tr.discrete or not inputs.size or not due or not (measured or hold):
             return
         model = self.system.models[k]
         after = self._guard(k, t, model.save_state)
@@ -795,17 +802,32 @@ class Multirate:
                 shifted[:, i] += scale[:, i]
                 tr.gain_checks += 1
                 response += np.abs(self.run_step(k, t, h, shifted) - y)
-            swing = self._swing_response(k, token, t, h, inputs) if hold else None
         except SubModelError as exc:
             if exc.hung:
                 raise
             self._guard(k, t, model.restore_state, after)
             return
-        self._guard(k, t, model.restore_state, after)
         tr.gain = float(np.max(response / tr.policy.scale(y))) / h
         tr.gain_h = h
-        if swing is not None:
-            tr.moment = float(np.max(swing / tr.policy.scale(y))) / (h * h)
+        if hold:
+            self._measure_swing(k, token, t, h, inputs, y)
+        self._guard(k, t, model.restore_state, after)
+
+    def _measure_swing(self, k: int, token: Any, t: float, h: float, inputs: np.ndarray,
+                       y: np.ndarray) -> None:
+        """:attr:`Track.moment` of a receiver that holds its inputs, from
+        :meth:`_swing_response`; a sub-model that fails on the probe (one that refuses half
+        steps) is taken as fast, not probed again until its gain is (one that hangs still ends
+        the run)."""
+        tr = self.tracks[k]
+        try:
+            swing = self._swing_response(k, token, t, h, inputs)
+        except SubModelError as exc:
+            if exc.hung:
+                raise
+            tr.moment = math.inf
+            return
+        tr.moment = float(np.max(swing / tr.policy.scale(y))) / (h * h)
 
     def _swing_response(self, k: int, token: Any, t: float, h: float,
                         inputs: np.ndarray) -> np.ndarray:
@@ -822,8 +844,9 @@ class Multirate:
 
         def halves(first: np.ndarray, second: np.ndarray) -> np.ndarray:
             self._guard(k, t, self.system.models[k].restore_state, token)
-            tr.gain_checks += 2
+            tr.gain_checks += 1
             self.run_step(k, t, half, np.tile(first, (len(NODES), 1)))
+            tr.gain_checks += 1
             return self.run_step(k, t + half, h - half, np.tile(second, (len(NODES), 1)))
 
         plain = halves(held, held)
@@ -929,7 +952,7 @@ class Multirate:
         end point, or the pieces of an earlier re-run).
 
         One step when ``pieces`` is 1; otherwise steps of about ``1/pieces`` of it, each
-        shortened until it resolves its inputs (:meth:`input_resolution`: no call needed to
+        shortened until it resolves its inputs (:meth:`_fed_ratio`: no call needed to
         check) — a first guess from the whole step's deviation cannot see how fast the partner
         moves inside it.
 
@@ -1008,7 +1031,7 @@ class Multirate:
     def _unresolved(self, tr: Track, t: float, step: float, u: np.ndarray,
                     gain: float) -> float | None:
         """The shorter piece to try if ``[t, t + step]`` does not resolve its inputs ``u``
-        (:meth:`input_resolution`, no call needed), else ``None``."""
+        (:meth:`_fed_ratio`, no call needed), else ``None``."""
         if step <= tr.policy.hmin:
             return None
         ratio, power, _, _ = self._fed_ratio(tr, t, step, u, tr.rows[-1], gain)
@@ -1316,9 +1339,11 @@ class Multirate:
         Two checks: consumers can interpolate the new trajectory (its interpolation error ×
         their sensitivity; grey box: the larger of the samples' estimate and what the model's
         own slope reveals, :meth:`slope_error`), and the step resolved its own inputs
-        (:meth:`input_resolution` × its sensitivity). A step whose slope reveals aliasing and
-        whose outputs no consumer reads with a sensitivity (gain 0: no consumers) is rejected
-        outright; any rejection of a step whose slope revealed aliasing at least halves it.
+        (:meth:`_fed_ratio`: :meth:`input_resolution` × its sensitivity; for a receiver that
+        holds its inputs, :meth:`hold_deviation` and :meth:`hold_lag`). A step whose slope
+        reveals aliasing and whose outputs no consumer reads with a sensitivity (gain 0: no
+        consumers) is rejected outright; any rejection of a step whose slope revealed aliasing
+        at least halves it.
         """
         pol = tr.policy
         gain = self.consumer_gain(tr.index)
@@ -1339,9 +1364,9 @@ class Multirate:
         why = self._rejection(tr, i, e, gain, ratio, unresolved, revealed)
         # the step control's memory (PI, mean step) sees only the steps that are kept
         h_next = pol.next_step(h, ratio, power, why is None)
-        if unresolved > 1.0:
-            h_next = min(h_next, pol.next_step(h, unresolved, fed_power + pol.extra_power,
-                                               False))
+        if unresolved > 1.0:  # a lasting lag (power 2) is met against tol, not a share of it
+            extra = pol.extra_power if fed_power != 2 else 0
+            h_next = min(h_next, pol.next_step(h, unresolved, fed_power + extra, False))
         if revealed is not None and why is not None:
             h_next = min(h_next, 0.5 * h)
         norm = pol.norm_scale(y)  # the norm the error is met in (StepPolicy.norm_scale)
@@ -1497,7 +1522,9 @@ class Multirate:
         estimates exactly that, per step) plus what its own steps failed to resolve of its
         inputs. Summed over the run per receiver, as if no error ever decayed, except where
         an error memory was measured (:mod:`~cosimstep.race_memory`): there the sums fade
-        (:meth:`_spend`), and the estimate is the largest receiver's sum at its largest.
+        (:meth:`_spend`), and the estimate is the largest receiver's sum at its largest. A
+        receiver that holds its inputs adds the largest lasting lag it met (:meth:`hold_lag`),
+        which does not add up and does not fade.
         """
         return max(self._peak, self._estimate_now())
 
@@ -1524,6 +1551,8 @@ ROUNDING = 64 * np.finfo(float).eps
 def _midstep(t: float, h: float, inputs: np.ndarray) -> np.ndarray:
     """The value a receiver that holds its inputs gets over ``[t, t + h]`` (inputs at
     :data:`NODES`): the cubic through them at mid-step, as :meth:`Multirate.run_step` gives it."""
+    if h <= negligible(t):  # a step of a few ulps: its inputs held at the start
+        return np.array(inputs[0], dtype=float)
     return evaluate(taylor_coefficients(list(t + NODES * h), inputs, t, 3), 0.5 * h)
 """Relative size below which a deviation between the cubic a sub-model follows and its
 partners' trajectory is rounding: both are evaluated from the same stored values through a

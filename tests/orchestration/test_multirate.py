@@ -266,7 +266,7 @@ def test_receivers_that_hold_their_inputs_meet_tol(name: str, until: float, tol:
     hold the mid-step value; the multi-rate step control judges what they hold
     (``Multirate.hold_deviation``, ``hold_lag``). Measured when the cubic they never see was
     judged instead: 63, 134 and 10.7 × tol with estimates of 0.9, 0.25 and 0.74 × tol; now
-    4.8, 1.3 and 0.45 × tol, estimates 2.7, 1.7 and 2.0 × tol (3,497, 783 and 918 calls)."""
+    1.8, 0.99 and 0.41 × tol, estimates 2.4, 1.4 and 1.8 × tol (1,532, 820 and 947 calls)."""
     system, reference = suite.get(name).build()
     for model in system.models.values():
         model.capabilities = dataclasses.replace(model.capabilities,
