@@ -481,17 +481,6 @@ class Multirate:
         return (float((np.maximum(np.abs(mean) - rounding, 0.0) / scale).max()),
                 float((np.maximum(np.abs(swing) - rounding, 0.0) / scale).max()))
 
-    def fed_error(self, tr: Track, t: float, h: float, inputs: np.ndarray,
-                  gain: float) -> float:
-        """The error (scaled like the outputs) that what ``tr`` is fed over ``[t, t + h]``
-        leaves in its outputs and that adds up over the run: its sensitivity ``gain`` × ``h``
-        × :meth:`input_resolution`; for a receiver that holds its inputs, × the mean of
-        :meth:`hold_deviation` instead (the swing's lasting error is :meth:`hold_lag`)."""
-        k = tr.index
-        if k not in self.holds:
-            return gain * h * self.input_resolution(k, t, h, inputs)
-        return gain * h * self.hold_deviation(k, t, h, inputs)[0]
-
     @staticmethod
     def hold_lag(tr: Track, h: float, swing: float, gain: float) -> float:
         """The lasting error (scaled like the outputs) that holding its inputs over steps of
@@ -515,14 +504,16 @@ class Multirate:
     def _fed_ratio(self, tr: Track, t: float, h: float, inputs: np.ndarray, y: np.ndarray,
                    gain: float) -> tuple[float, int, float, float]:
         """What ``tr``'s step ``[t, t + h]`` failed to resolve of its inputs, against what it
-        may: the ratio, the power of ``h`` it falls with, the error that adds up
-        (:meth:`fed_error`; scaled like the outputs) and the lasting one as a share of tol.
+        may: the ratio, the power of ``h`` it falls with, the error that adds up (scaled like
+        the outputs: the sensitivity ``gain`` × ``h`` × :meth:`input_resolution`, or × the
+        mean of :meth:`hold_deviation` for a receiver that holds its inputs) and the lasting
+        one as a share of tol.
         For a receiver that holds its inputs the ratio is the larger of the two (the lag,
         :meth:`hold_lag`, power 2), whichever asks for the shorter step."""
         pol = tr.policy
         lasting, power = 0.0, self.resolution_power(tr.index)
         if tr.index not in self.holds:
-            fed = self.fed_error(tr, t, h, inputs, gain)
+            fed = gain * h * self.input_resolution(tr.index, t, h, inputs)
             ratio, _ = pol.ratio(fed * pol.scale(y), y, h)
         else:
             mean, swing = self.hold_deviation(tr.index, t, h, inputs)
@@ -535,7 +526,7 @@ class Multirate:
         return ratio, power, fed, lasting
 
     def resolution_power(self, k: int) -> int:
-        """How the error :meth:`fed_error` estimates falls with the receiver's step ``h``:
+        """How the error :meth:`_fed_ratio` adds up falls with the receiver's step ``h``:
         ``h^5`` for a cubic it follows (deviation ``h^4`` integrated over ``h``), ``h^3`` for
         a held mid-step value (its mean ``h^2`` over ``h``)."""
         return 3 if k in self.holds else 5
@@ -550,19 +541,22 @@ class Multirate:
         model = self.system.models[k]
         tr = self.tracks[k]
         q = model.capabilities.max_input_derivative_order
-        if len(inputs[0]) and h <= negligible(t):  # a step of a few ulps: inputs held
+        coef: np.ndarray | None = None  # the input derivatives sent (q > 0)
+        if not len(inputs[0]):
+            coef, u = np.zeros((4, 0)), np.zeros(0)
+        elif q == 0:  # hold: the mid-step value
+            u = _midstep(t, h, inputs)
+        elif h <= negligible(t):  # a step of a few ulps: inputs held
             coef = np.zeros((4, len(inputs[0])))
             coef[0] = inputs[0]
             u = coef[0]
-        elif len(inputs[0]):
-            coef = taylor_coefficients(list(t + NODES * h), inputs, t, 3)
-            u = coef[0] if q > 0 else evaluate(coef, 0.5 * h)  # hold: the mid-step value
         else:
-            coef, u = np.zeros((4, 0)), np.zeros(0)
+            coef = taylor_coefficients(list(t + NODES * h), inputs, t, 3)
+            u = coef[0]
         start = time.perf_counter()
         tr.calls += 1
         self._guard(k, t, model.set_inputs, u, h=h)
-        if q > 0:
+        if coef is not None and q > 0:
             self._guard(k, t, model.set_input_derivatives, coef[1:q + 1], h=h)
         self._guard(k, t, model.do_step, t, h, h=h)
         y = self._caller._outputs(k, t, h)  # one float per declared output, or an error
