@@ -985,7 +985,14 @@ class Multirate:
             at = len(tr.times) - 1
             if at not in tr.states:
                 tr.states[at] = self._guard(k, t, model.save_state)
-            y = self.run_step(k, t, step, u)
+            try:
+                y = self.run_step(k, t, step, u)
+            except SubModelError as exc:
+                # a re-run is a step like a trial one: what it failed on is a shorter piece
+                # (the inputs of the whole step no longer fit it: read them per piece)
+                step_try = self._failed_trial(tr, exc, tr.states[at], t, step)
+                inputs = None
+                continue
             slope = self._slope(k, t + step)
             if inputs is None:
                 # a piece is a step like any other: its consumers must be able to read it

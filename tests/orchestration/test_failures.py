@@ -133,6 +133,34 @@ def test_a_failing_trial_step_is_a_rejection(examples, master, mode):
     assert r.error.max_scaled <= 10 * tol  # measured 2e-4 (pc, steps capped) and 5.7 tol
 
 
+@pytest.mark.parametrize("position", [4, 9, 12, 15])
+def test_a_failing_re_run_of_a_multirate_step_is_a_rejection(examples, position):
+    """The lower bar raises on its ``position``-th call only. These calls are re-runs of a
+    pending step (its verification found the extrapolated inputs wrong), which once ended the
+    run: 13 of the first 79 positions (4, 9, 12, 15, …) over 1 s at tol 1e-4; a re-run that
+    fails is now retried in shorter pieces like a trial step (all 79 ok, 0.07-1.1 x tol)."""
+    from cosimstep import load_system, make_controller
+
+    spec = load_system(examples / "double_pendulum_mixed.toml")
+    bar = spec.system.models["bar2"]
+    plain = bar.do_step
+    calls = {"n": 0, "raised": 0}
+
+    def do_step(t, h):
+        calls["n"] += 1
+        if calls["n"] == position:
+            calls["raised"] += 1
+            raise RuntimeError("a licence server hiccup")
+        plain(t, h)
+
+    bar.do_step = do_step
+    r = simulate(spec.system, 1.0, make_controller("pc", None, 1e-4, probe_every=0),
+                 MasterOptions("multirate", 2), reference=spec.reference)
+    assert calls["raised"] == 1
+    assert r.status == "ok", r.message
+    assert r.error.max_scaled <= 10 * 1e-4
+
+
 def test_the_companion_takes_the_runs_steps_where_a_doubled_one_fails(examples):
     # the lower bar fails on steps above 4 ms; the run's steps stay below, the companion's
     # doubled ones mostly do not: those pairs are taken as the run took them, so the run goes
