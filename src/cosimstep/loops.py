@@ -506,8 +506,10 @@ class FixedLoop(_Loop):
                 self._grow()
                 table = self.table
                 flat, base = table.reshape(-1), table.ctypes.data
-            if lean is not None and (not lean_after or (n - segment >= lean_after
-                                                        and h == h_plain)):
+            # a step onto a time event is the master's own (an edge: Master.step)
+            onto_event = landing == event and h == event - t
+            if lean is not None and not onto_event and (
+                    not lean_after or (n - segment >= lean_after and h == h_plain)):
                 lean.step(t, h, n, flat, base)
             else:
                 self._general_step(t, h, n, segment, event if landing == event else math.nan)

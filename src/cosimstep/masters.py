@@ -343,6 +343,9 @@ class Master:
         # outputs computed from the instant (direct feedthrough): at a time event already on
         # its far side (see step), and the models that have any
         self._instant, self._instant_model = _instant_outputs(system)
+        # who declares which time event: at an edge its outputs may already stand on the
+        # event's far side (a step source), see _jumped
+        self._declared = _declared_events(system)
 
     def _predicted_columns(self, sources: list[list[int]]) -> np.ndarray:
         """Outputs that some receiver uses *extrapolated* over a step (not yet computed).
@@ -481,6 +484,9 @@ class Master:
         self._held_discrete(coef, y_new)
         self.assumed = evaluate(coef, h)
         poly, coef = coef, self._as_input(coef, h)  # the same array unless trapezoidal
+        # an extrapolation of order 0 foresees no change to tell a jump from (see _jumped)
+        owners = self._owners(t + h) if edge and p > 0 else ()
+        jumped: list[int] = []
         for k in self.sequence:
             self._step_model(k, t, h, coef)
             out = self.system.output_slices[k]
@@ -491,11 +497,16 @@ class Master:
                 self._guard(k, t, model.set_inputs, self._route(k, evaluate(poly[:, src], h)),
                             h=h)
             y_new[out] = self._outputs(k, t, h)
+            own = self._jumped(out, y_new, history[-1]) if k in owners else []
+            jumped += own
             if gauss_seidel and not (edge and self._instant_model[k]):
                 # Later models see this model's fresh values: interpolate through t + h.
+                kept = poly[:, own].copy() if own else None
                 pts = [*times[-p:], t + h] if p > 0 else [t + h]
                 poly[:, out] = taylor_coefficients(pts, _stacked(history[-p:, out], y_new[out])
                                                    if p > 0 else y_new[None, out], t, p)
+                if kept is not None:
+                    poly[:, own] = kept  # across the event: its own side (see _jumped)
                 self._held_discrete(poly, history[-1])
                 if coef is not poly:
                     coef[:, out] = self._as_input(poly[:, out], h)
@@ -503,6 +514,7 @@ class Master:
         self._check_finite(range(len(self.system.models)), t, y_new, h)
         if edge:
             y_new[self._instant] = self.assumed[self._instant]
+            y_new[jumped] = self.assumed[jumped]
         self.last = y_new
         return y_new
 
@@ -525,12 +537,49 @@ class Master:
         """``y`` at a time event ``t`` reached by an edge step (:meth:`step`), with the outputs
         computed from the instant read again there: the event's right-hand values, where the
         next segment starts and what the results show at ``t``."""
-        if not self._instant.any():
+        owners = self._owners(t)
+        if not self._instant.any() and not owners:
             return y
         y = y.copy()
+        for k in owners:  # what jumped there was kept on the step's own side (_jumped)
+            y[self.system.output_slices[k]] = self._outputs(k, t, None)
         self._settle_feedthrough(t, y)
         self._check_finite(range(len(self.system.models)), t, y, None)
         return y
+
+    def _owners(self, t: float) -> tuple[int, ...]:
+        """The models that declared the time event an edge step ends on (the declared time
+        nearest ``t``: the run lands on it to within ulps)."""
+        times, owners = self._declared
+        if not times.size:
+            return ()
+        i = int(np.searchsorted(times, t))
+        if i == times.size or (i > 0 and t - times[i - 1] < times[i] - t):
+            i -= 1
+        return owners[i]
+
+    def _jumped(self, out: slice, y_new: np.ndarray, start: np.ndarray) -> list[int]:
+        """The columns of ``out`` (outputs of a model that declared the time event this edge
+        step ends on) whose new value is the event's right-hand one: it missed the step's own
+        extrapolation by more than the whole change that extrapolation foresaw over the step.
+
+        The API reads one value at the event, and a model that changes abruptly there may give
+        either side: an output computed from its own clock (a step source, ``1 if t >= 1``)
+        already gives the new one. Interpolated through it, a receiver met the jump over the
+        whole step, an error no shorter step reduces, and ``pc`` (Gauss–Seidel and Jacobi
+        alike, through its corrector) ended at ``hmin`` on the event. A continuous output
+        misses its extrapolation by the extrapolation's error, of a higher order in ``h`` than
+        the change; where steps are too long for that to hold, taking it as jumped costs only
+        this step's interpolation. Such a column is met on the step's own side, as a direct
+        feedthrough output is (:meth:`step`), and read again at the event for its right-hand
+        value (:meth:`right_limits`). Discrete outputs are held in any case. Not judged where
+        the step's extrapolation has order 0 (it foresees no change, so every output that
+        moves would count as jumped): there the new value is still interpolated through."""
+        cols = np.arange(out.start, out.stop)
+        own = self.assumed[cols]
+        jump = np.abs(y_new[cols] - own) > np.abs(own - start[cols])
+        jump &= ~self.discrete[cols] & ~self._instant[cols]
+        return cols[jump].tolist()
 
     def _as_input(self, coef: np.ndarray, h: float) -> np.ndarray:
         """The input polynomial over the step as the sub-models receive it: as is, or under
@@ -839,6 +888,16 @@ def _instant_outputs(system: CompiledSystem) -> tuple[np.ndarray, list[bool]]:
         if models[-1]:  # (most models have none: their ports need no look)
             mask[columns] = [bool(feedthrough.get(port.name)) for port in m.outputs]
     return mask, models
+
+
+def _declared_events(system: CompiledSystem) -> tuple[np.ndarray, list[tuple[int, ...]]]:
+    """The distinct time events the models declare, sorted, and the models declaring each."""
+    owners: dict[float, list[int]] = {}
+    for k, model in enumerate(system.models):
+        for e in model.time_events():
+            owners.setdefault(float(e), []).append(k)
+    times = sorted(owners)
+    return np.array(times, dtype=float), [tuple(owners[e]) for e in times]
 
 
 def _start_facts(system: CompiledSystem) -> tuple[bool, bool]:

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cosimstep import Fixed, System, load_system, simulate
+from cosimstep import Fixed, SubModel, System, load_system, simulate
 from cosimstep.controllers import Attempt, Controller, make_controller
 from cosimstep.masters import Master, MasterOptions
-from helpers import Follower, Jump
+from helpers import Follower, Integrator, Jump
 
 
 class Replay(Controller):
@@ -234,3 +234,57 @@ def test_step_doubling_sees_what_its_first_mover_did_not(controller, holding, un
     # announced (0.035 and 0.019)
     assert r.error.max_scaled <= 10 * tol < before * tol
     assert ctrl.unforeseen > 0
+
+
+class _StepSource(SubModel):
+    """0 before ``at``, 1 from it on, computed from its own clock (so the value read at ``at``
+    is already the new one); declares ``at`` as its time event; a continuous port."""
+
+    def __init__(self, at: float = 1.0) -> None:
+        from cosimstep import Capabilities, Port
+
+        self.inputs = ()
+        self.outputs = (Port("y", "1", 0.0),)
+        self.capabilities = Capabilities(can_save_state=True)
+        self.at, self.t = at, 0.0
+
+    def initialize(self, t0):
+        self.t = t0
+
+    def set_inputs(self, values):
+        pass
+
+    def do_step(self, t, h):
+        self.t = t + h
+
+    def get_outputs(self):
+        return np.array([1.0 if self.t >= self.at else 0.0])
+
+    def time_events(self):
+        return [self.at]
+
+    def save_state(self):
+        return self.t
+
+    def restore_state(self, token):
+        self.t = token
+
+
+@pytest.mark.parametrize("master", ["gauss-seidel", "jacobi"])
+@pytest.mark.parametrize("controller", ["fixed", "pc"])
+def test_an_output_that_jumps_at_its_declared_time_event(master, controller):
+    """A step source read at its event gives the new value. Interpolated through it, the
+    integrator met the step over the whole step before the event: ``pc`` ended at ``hmin`` on
+    the event under both masters, and a fixed step of 0.01 s (Gauss–Seidel) integrated
+    0.0042 too much. The value is met on the step's own side and the event's new value starts
+    the next segment (Master._jumped)."""
+    system = System()
+    system.add("src", _StepSource(1.0))
+    system.add("int", Integrator())
+    system.connect("src.y", "int.u")
+    ctrl = Fixed(0.01) if controller == "fixed" else make_controller("pc", None, 1e-4)
+    r = simulate(system, 2.0, ctrl, MasterOptions(master, 2))
+    assert r.status == "ok", r.message
+    assert abs(r["int.x"][-1] - 1.0) < 1e-12  # the integral of the step over [0, 2]
+    i = int(np.flatnonzero(np.asarray(r.times) == 1.0)[0])
+    assert r["src.y"][i] == 1.0 and r["int.x"][i] == 0.0  # at the event: its right-hand value
