@@ -390,7 +390,8 @@ class Multirate:
                 times, float(at[-1])) - bisect.bisect_left(times, float(at[0])) > 2:
             return None
         width = stencil if self.method is None else max(stencil, self.method.window)
-        last = min(end, bisect.bisect_left(times, float(at[-1])) + stencil // 2)
+        # (read at a jump's time from the segment after it: from its right limit on)
+        last = min(end, max(first, bisect.bisect_left(times, float(at[-1]))) + stencil // 2)
         start = max(first, last - width)
         return start, min(end, start + width), False
 
@@ -1013,13 +1014,12 @@ class Multirate:
                 self._lands(k, 0.0, verdict.spent_out, verdict.spent_in)
                 step_try = min(verdict.h_next, h / pieces)
             made += 1
-            t = t_end if step == t_end - t else t + step
-            tr.times.append(t)
-            tr.rows.append(y)
-            tr.policy.observe(t, y)
+            start, t = t, t_end if step == t_end - t else t + step
+            # a step onto a time event k declared keeps both sides of what jumped there
+            left = self._left_of_jump(k, start, step, y) \
+                if t == t_end and k in self.declared.get(t, ()) else None
             tr.steps.append(step)
-            if slope is not None:
-                tr.slopes.append(slope)
+            _append(tr, t, y, slope, left)
             if shortened and cut_at is None and t < t_end:
                 cut_at = len(tr.times) - 1
         tr.accepted += made - dropped
@@ -1072,9 +1072,9 @@ class Multirate:
             self._refresh_gain(k, token, t, h, inputs, y)
         _append(tr, landing if lands else t + h, y, slope, left)
         tr.h = verdict.h_next
-        if left is not None:
+        if left is not None and self._changed(k, left, y):
             self._state_event(k, left)
-        elif sudden and not lands:
+        elif sudden and not lands and left is None:
             self._event(k, "discontinuity", {}, at=len(tr.times) - 2)
         if not tr.discrete:
             self._memory_of[k].accepted()
@@ -1133,6 +1133,8 @@ class Multirate:
                 tr.h = self._failed_trial(tr, exc, token, t, h)
                 continue
             lands, h = lands and step == h, step
+            if left is None and lands and k in self.declared.get(landing, ()):
+                left = self._left_of_jump(k, t, h, y)
             # the slope at an event belongs to the next segment: no alias check there
             verdict = self._judge(tr, t, h, y if left is None else left, inputs, slope,
                                   (lands and landing < self.until) or left is not None)
@@ -1289,6 +1291,40 @@ class Multirate:
         inputs = self.inputs_over(k, t, b)[0]
         return b, left, self.run_step(k, t, b, inputs), inputs
 
+    def _changed(self, k: int, left: np.ndarray, y: np.ndarray) -> bool:
+        """Whether a discrete output of ``k`` changed between ``left`` and ``y`` (a state
+        event), not only a continuous one at a time event ``k`` declared (_left_of_jump)."""
+        cols = self.changing.get(k)
+        return cols is not None and not np.array_equal(left[cols], y[cols])
+
+    def _left_of_jump(self, k: int, t: float, h: float, y: np.ndarray) -> np.ndarray | None:
+        """The left limit of ``k``'s outputs at the time event it declared at ``t + h``, where
+        some of them are read already on the event's far side (a step source): those that
+        missed the track's own extrapolation by more than the whole change it foresaw over the
+        step, replaced by that extrapolation; ``None`` where none did. Stored as both sides of
+        the event (:func:`_append`), the consumers read the step up to the event on its own
+        side; read through the new value, the jump was an interpolation error no step
+        shortened, and the run ended at ``hmin`` on the event (as Master._jumped argues for
+        the synchronous masters). Not judged with one point in the segment: an extrapolation
+        of order 0 foresees no change."""
+        tr = self.tracks[k]
+        if tr.discrete or len(tr.times) - tr.segment < 2:
+            return None
+        # the degree-`order` extrapolation through the segment's newest points, as its
+        # consumers read past its end (_window), at the event from this side
+        start = max(tr.segment, len(tr.times) - (self.order + 1))
+        at = np.array([t + h])
+        own = self._fill(tr, list(range(len(y))), at, start, len(tr.times), True)[0]
+        jump = np.abs(y - own) > np.abs(own - tr.rows[-1])
+        cols = self.changing.get(k)
+        if cols is not None:
+            jump[cols] = False  # discrete outputs: held, located as state events
+        if not jump.any():
+            return None
+        left = y.copy()
+        left[jump] = own[jump]
+        return left
+
     def _state_event(self, k: int, left: np.ndarray) -> None:
         """A discrete output of ``k`` changed at its newest point ``t``: record the event and
         re-synchronize (:meth:`_resync`)."""
@@ -1417,6 +1453,11 @@ class Multirate:
         """Initialize every sub-model; the first point of every trajectory is at ``t0``."""
         self.events = events
         self.cuts = [list(events) for _ in self.tracks]
+        # who declared which time event: its outputs may stand on the event's far side there
+        self.declared: dict[float, set[int]] = {}
+        for k, m in enumerate(self.system.models):
+            for e in m.time_events():
+                self.declared.setdefault(float(e), set()).add(k)
         self.checked = dict.fromkeys(self.monitors, t0)
         self.until = until
         system = self.system
@@ -1620,7 +1661,7 @@ def _segment_range(times: list[float], lo: float, hi: float) -> tuple[int, int]:
     while first + 1 < len(times) and times[first + 1] == times[first]:
         first += 1
     end = bisect.bisect_right(times, hi + 1e-9 * max(1.0, abs(hi)))
-    if end >= 2 and times[end - 1] == times[end - 2]:
+    if end - 1 > first and times[end - 1] == times[end - 2]:  # (not the jump at lo)
         end -= 1
     return first, end
 
