@@ -184,6 +184,13 @@ class System:
                         self.origins[name],
                         f"input '{name}.{port.name}' is not connected and has no start value",
                         "connect an output to it or give it a start value"))
+        if self.models and not any(model.outputs for model in self.models.values()):
+            # nothing to exchange or record (and nothing an unconnected input could be read
+            # through: it ended in an IndexError)
+            problems.append(Problem(
+                self.origins[next(iter(self.models))],
+                "no sub-model has an output: a run would exchange and record nothing",
+                "give a sub-model an output (a sink can output what it accumulates)"))
         return problems
 
     def _duplicate_ports(self, maps: PortMaps) -> list[Problem]:

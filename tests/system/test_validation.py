@@ -38,6 +38,16 @@ def test_all_problems_reported_together():
     assert len(info.value.problems) == 6
 
 
+def test_a_system_without_outputs_is_refused_with_a_reason():
+    """A lone sink (an input with a start value, no output): nothing is exchanged or recorded,
+    and reading its unconnected input ended every master in an IndexError."""
+    sink = Integrator()
+    sink.outputs = ()
+    s = System().add("sink", sink)
+    with pytest.raises(ConfigurationError, match="no sub-model has an output"):
+        simulate(s, 1.0, Fixed(0.1), MasterOptions("gauss-seidel", 2))
+
+
 def test_malformed_addresses_and_ports_declared_twice_are_reported():
     """The quick path for plain connections must not accept what the full check refuses."""
     s = System()
