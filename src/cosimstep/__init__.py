@@ -8,7 +8,13 @@ master (:class:`MasterOptions`) and a step controller, call :func:`simulate`, ge
 from cosimstep.adapters.ode import RK4, OdeSubModel, ParameterSchedule, SolveIvp
 from cosimstep.config import SystemSpec, load_system
 from cosimstep.controllers import Controller, Fixed, Random, make_controller
-from cosimstep.errors import ConfigurationError, Problem, StepSizeError, SubModelError
+from cosimstep.errors import (
+    ConfigurationError,
+    Problem,
+    RunInterrupted,
+    StepSizeError,
+    SubModelError,
+)
 from cosimstep.masters import DEFAULT_CALL_TIMEOUT, MasterOptions
 from cosimstep.reference import Reference
 from cosimstep.simulate import SimulationResult, simulate
@@ -22,6 +28,7 @@ __all__ = [
     "DEFAULT_CALL_TIMEOUT", "RK4", "Capabilities", "ConfigurationError", "Controller", "Fixed",
     "MasterOptions",
     "OdeSubModel", "ParameterSchedule", "Port", "Problem", "Random", "Reference",
+    "RunInterrupted",
     "SimulationResult", "SolveIvp", "StepSizeError", "SubModel", "SubModelError", "System",
     "SystemSpec", "load_ssp", "load_system", "make_controller", "read_run", "simulate", "sweep",
 ]

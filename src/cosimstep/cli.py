@@ -27,7 +27,7 @@ from cosimstep.controllers import (
     merged_settings,
     plain_error,
 )
-from cosimstep.errors import ConfigurationError, Problem, is_number
+from cosimstep.errors import ConfigurationError, Problem, RunInterrupted, is_number
 from cosimstep.iteration import COUPLINGS
 from cosimstep.masters import COUPLING_INPUTS, MASTERS, RESYNC, MasterOptions, trapezoidal_refusal
 from cosimstep.simulate import SimulationResult, simulate
@@ -392,6 +392,8 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
                         config={"source": spec.source, "system": spec.raw},
                         progress=progress, estimate=estimate, output_interval=output[0],
                         output_steps=output[1], **(budget or {}))
+    except RunInterrupted as exc:  # stored; reported as any ended run (exit 1)
+        return exc.result
     except ValueError as exc:
         if (budget or {}).get("resume") is None:
             raise
@@ -822,10 +824,14 @@ def demo(which: str, out: str) -> None:
     1e-4), in one figure; or, with `ship`, the ship plant's damage scenario (thesis 1.1)."""
     from cosimstep.demo import run_demo
 
-    if which == "ship":
-        _ship_demo(out)  # exits with the run's status
-        return
-    runs, db, figure = run_demo(out)
+    try:
+        if which == "ship":
+            _ship_demo(out)  # exits with the run's status
+            return
+        runs, db, figure = run_demo(out)
+    except RunInterrupted as exc:
+        click.echo(f"{exc.result.message}; the runs so far are in {out}", err=True)
+        sys.exit(EXIT_FAILED)
     click.echo(f"{'run':26s} {'status':8s} {'calls':>7s} {'max error':>10s} {'wall s':>7s}")
     for run in runs:
         r = run.result

@@ -97,3 +97,17 @@ def still_failing(failure: tuple[SubModelError, float] | None, t: float, share: 
     return SubModelError(exc.model, exc.t, f"{exc.reason} (the run did not get past "
                          f"t = {end:.12g}, where it failed: retried with steps down to where "
                          f"their share of tol, {share:.1g}, is round-off; then {stop})", exc.h)
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """A run ended by Ctrl-C or SIGTERM, after everything it computed was stored: its
+    :class:`~cosimstep.result.SimulationResult` (status ``interrupted``) is :attr:`result`.
+
+    Raised rather than returned so that the interrupt stops the caller as well: a script
+    looping over runs went on with its next run after each Ctrl-C. A ``KeyboardInterrupt``,
+    so code that does not expect it ends as on any Ctrl-C.
+    """
+
+    def __init__(self, result: Any) -> None:
+        super().__init__(result.message)
+        self.result = result

@@ -587,7 +587,7 @@ class Run:
                         result.summary(), result.calls, result.time_in_models,
                         symbols=result.symbol_table())
             sink.close()
-        if failure is not None and raise_on_failure:
+        if failure is not None and raise_on_failure and status != "interrupted":
             raise failure
         return result
 

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from cosimstep.controllers import Controller, StepPolicy
+from cosimstep.errors import RunInterrupted
 from cosimstep.estimate import FACTOR
 from cosimstep.kernel import Budget
 from cosimstep.masters import MasterOptions, trapezoidal_refusal
@@ -80,6 +81,9 @@ def simulate(
         after two seconds, so short runs stay quiet.
     raise_on_failure:
         Raise the failure instead of returning a result with ``status = "failed"``.
+        An interrupted run (Ctrl-C, SIGTERM) always raises, once everything it computed is
+        stored: :class:`~cosimstep.errors.RunInterrupted`, a ``KeyboardInterrupt`` whose
+        ``result`` is the run's result (status ``interrupted``), so that a script stops too.
     estimate:
         How an adaptive run estimates the global error it delivered
         (``SimulationResult.error_estimate``), without a reference: ``"sum"`` (free) adds up
@@ -152,6 +156,8 @@ def simulate(
         if estimate == "rerun":  # the looser twin's calls come out of the run's budget
             looser = _simulate(system, until, scaled(ctrl, FACTOR), master, t0, None, None,
                                name, None, False, False, None, spent)
+            if looser.status == "interrupted":
+                raise RunInterrupted(looser)
             spent = spent.after(looser.calls_total)
         checkpoints = None
         if not repeat and (checkpoint_every is not None or checkpoint_steps is not None):
@@ -164,6 +170,8 @@ def simulate(
                          richardson=estimate == "richardson", amend=amend)
 
     first = once(controller, budget, resume, config, None)
+    if first.status == "interrupted":
+        raise RunInterrupted(first)
     factor = tightening(first.status, first.error_estimate, controller,
                         multirate=master is not None and master.name == "multirate") \
         if pristine is not None else None
@@ -232,8 +240,8 @@ def _repeat(first: SimulationResult, factor: float, forget: bool, pristine: Cont
     _amend(second, f"; not kept: run {first.run_id}, the first, is the result", False)
     _amend(first, f"; a repeat {at} {what}: this is the first run's result", None,
            {"tightened": first.tightened, "calls_spent": first.calls_spent})
-    if raise_on_failure and second.status == "interrupted":
-        raise KeyboardInterrupt(first.message)  # the user stopped the repeat: stop the caller
+    if second.status == "interrupted":
+        raise RunInterrupted(first)  # the user stopped the repeat: the first run stands
     return first
 
 

@@ -35,6 +35,8 @@ from typing import Any
 
 import numpy as np
 
+from cosimstep.errors import RunInterrupted
+
 DESIGNS = ("full", "lhs", "sobol")
 KEEP = ("summary", "traces")
 RUN_OPTIONS = ("tol", "step", "until")
@@ -154,7 +156,10 @@ def run_point(system: str, point: Mapping[str, float], options: Mapping[str, Any
     summary = _failed(point, "")
     summary["store"] = store
     try:
-        result = _simulate(system, point, options, store)
+        try:
+            result = _simulate(system, point, options, store)
+        except RunInterrupted as exc:  # a worker told to stop: the point's run as it ended
+            result = exc.result
         # a run repeated at a tighter tol (cosimstep.tighten) cost the pair's calls: the
         # point's work is both (`calls` stays the kept run's, per sub-model; options
         # {"tighten": False} for single runs)

@@ -128,7 +128,13 @@ def test_an_interrupt_inside_a_store_write_loses_nothing_and_raises_nothing(exam
     monkeypatch.setattr(Store, "add_points", interrupted_write)
     spec = cosimstep.load_system(examples / "double_pendulum_slow.toml")
     db = tmp_path / "int.db"
-    result = cosimstep.simulate(spec.system, 10.0, cosimstep.Fixed(1e-4), store=db)
+    runs = 0
+    with pytest.raises(cosimstep.RunInterrupted) as info:
+        for _ in range(3):  # a script's loop of runs stops at the first Ctrl-C
+            runs += 1
+            cosimstep.simulate(spec.system, 10.0, cosimstep.Fixed(1e-4), store=db)
+    assert runs == 1 and isinstance(info.value, KeyboardInterrupt)
+    result = info.value.result
     assert result.status == "interrupted"
     stored = read_run(db)
     assert stored.status == "interrupted"
@@ -166,8 +172,10 @@ def test_an_interrupt_after_a_flush_wrote_and_before_it_cleared_raises_nothing(e
     monkeypatch.setattr(Store, "__init__", lambda self, path: init(self, path, 0.0))
     spec = cosimstep.load_system(examples / "double_pendulum_slow.toml")
     db = tmp_path / "flush.db"
-    result = cosimstep.simulate(spec.system, 2.0, cosimstep.make_controller("pc", None, 1e-4),
-                                store=db)
+    with pytest.raises(cosimstep.RunInterrupted) as info:
+        cosimstep.simulate(spec.system, 2.0, cosimstep.make_controller("pc", None, 1e-4),
+                           store=db)
+    result = info.value.result
     assert result.status == "interrupted", result.message
     stored = read_run(db)
     assert stored.status == "interrupted"
