@@ -711,7 +711,9 @@ def info(fmu: str, as_json: bool) -> None:
               help="Figure file (.png, .pdf, .svg).")
 @click.option("--run", "run_id", type=int, help="Run id in the store (default: the last, "
               "passing over a run repeated at a tighter tol that was not kept).")
-def plot(db: str, output: str, run_id: int | None) -> None:
+@click.option("--variables", help="Comma-separated outputs to draw (default: all), e.g. "
+              "bar1.theta.")
+def plot(db: str, output: str, run_id: int | None, variables: str | None) -> None:
     """Plot a stored run: states above, step size below."""
     from cosimstep.plotting import plot_run
     from cosimstep.store import read_run
@@ -734,7 +736,14 @@ def plot(db: str, output: str, run_id: int | None) -> None:
     except (FileNotFoundError, sqlite3.DatabaseError) as exc:
         click.echo(f"error: {db}: {exc} (is it a cosimstep results store?)", err=True)
         sys.exit(EXIT_CONFIG)
-    click.echo(f"wrote {plot_run(stored, output)}")
+    chosen = [v.strip() for v in variables.split(",") if v.strip()] if variables else None
+    unknown = [v for v in chosen or [] if v not in stored.names]
+    if unknown:
+        _config_exit(ConfigurationError([Problem(
+            "--variables", f"not an output of the run: {', '.join(unknown)}",
+            f"name outputs of the run: {', '.join(stored.names[:20])}"
+            + (" …" if len(stored.names) > 20 else ""))], db))
+    click.echo(f"wrote {plot_run(stored, output, chosen)}")
 
 
 @main.command()

@@ -51,8 +51,23 @@ def _plot_unit_panel(ax: Any, run: StoredRun, names: list[str], unit: str,
             ax.plot(run.times, run.reference[:, j], color=c, lw=0.8, ls="--",
                     label=f"{n} (monolithic)")
     ax.set_ylabel(f"[{unit}]")
-    ax.legend(fontsize=7, ncol=2, loc="upper right")
+    _legend(ax, ncol=2)
     ax.grid(alpha=0.3)
+
+
+LEGEND_MAX = 16
+"""Entries a panel's legend shows at most: past that it would cover the panel (a plant of
+200 outputs in one unit drew a legend taller than the figure), so the panel says how many
+lines it holds and how to choose them instead."""
+
+
+def _legend(ax: Any, **kw: Any) -> None:
+    labels = ax.get_legend_handles_labels()[1]
+    if len(labels) <= LEGEND_MAX:
+        ax.legend(fontsize=7, loc="upper right", **kw)
+        return
+    ax.text(0.99, 0.97, f"{len(labels)} lines: legend left out (choose outputs with "
+            "--variables)", transform=ax.transAxes, ha="right", va="top", fontsize=7)
 
 
 def _plot_step_panel(ax: Any, run: StoredRun, colours: list[str]) -> None:
@@ -63,7 +78,8 @@ def _plot_step_panel(ax: Any, run: StoredRun, colours: list[str]) -> None:
         _plot_model_steps(ax, run, models, colours)
     elif att.size:
         ok = att[:, 2] > 0
-        ax.step(att[ok, 0], att[ok, 1], where="post", lw=1, color="k", label="accepted step")
+        ax.step(*_through_last(att[ok, 0], att[ok, 1]), where="post", lw=1, color="k",
+                label="accepted step")
         if (~ok).any():
             ax.plot(att[~ok, 0], att[~ok, 1], "rx", ms=4, label="rejected attempt")
     if att.size:
@@ -71,7 +87,7 @@ def _plot_step_panel(ax: Any, run: StoredRun, colours: list[str]) -> None:
             ax.set_yscale("log")
         else:
             ax.set_ylim(0, 1.3 * att[:, 1].max())
-        ax.legend(fontsize=7, loc="upper right")
+        _legend(ax)
     ax.set_ylabel("step ΔT [s]")
     ax.set_xlabel("T [s]")
     ax.grid(alpha=0.3)
@@ -85,10 +101,20 @@ def _plot_model_steps(ax: Any, run: StoredRun, models: list[str], colours: list[
         c = colours[i % len(colours)]
         ok = (who == m) & (att[:, 2] > 0)
         bad = (who == m) & (att[:, 2] == 0)
-        ax.step(att[ok, 0], att[ok, 1], where="post", lw=1, color=c, label=f"{m} step")
+        ax.step(*_through_last(att[ok, 0], att[ok, 1]), where="post", lw=1, color=c,
+                label=f"{m} step")
         if bad.any():
             ax.plot(att[bad, 0], att[bad, 1], "x", color=c, ms=4,
                     label=f"{m} rejected")
+
+
+def _through_last(starts: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Steps drawn ``where="post"`` from their starts, with one more point at the last
+    step's end: a post-step line draws each level up to the next point only, so the last step
+    was left out."""
+    if not starts.size:
+        return starts, steps
+    return np.append(starts, starts[-1] + steps[-1]), np.append(steps, steps[-1])
 
 
 def _mark_events(axes: Any, run: StoredRun) -> None:

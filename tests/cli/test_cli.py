@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -145,6 +146,42 @@ def test_plot_writes_figure(examples, tmp_path):
     res = runner.invoke(main, ["plot", str(db), "-o", str(tmp_path / "fig.png")])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "fig.png").stat().st_size > 10_000
+
+
+def test_plot_chooses_variables_and_says_which_exist(examples, tmp_path):
+    db = tmp_path / "t.db"
+    runner = CliRunner()
+    runner.invoke(main, ["run", str(examples / "double_pendulum_toggled.toml"), "--until", "1",
+                         "--step", "0.01", "--out", str(db)])
+    res = runner.invoke(main, ["plot", str(db), "-o", str(tmp_path / "one.png"),
+                               "--variables", "bar1.theta"])
+    assert res.exit_code == 0, res.output
+    bad = runner.invoke(main, ["plot", str(db), "-o", str(tmp_path / "x.png"),
+                               "--variables", "bar1.theta,bar9.x"])
+    assert bad.exit_code == 2 and "bar9.x" in bad.output and "bar2.omega" in bad.output
+
+
+def test_a_crowded_panel_says_so_and_the_last_step_is_drawn():
+    """A legend of 200 outputs covered the figure; the step panel's line stopped where the
+    last step began."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cosimstep.plotting import LEGEND_MAX, _legend, _through_last
+
+    fig, ax = plt.subplots()
+    for i in range(LEGEND_MAX + 1):
+        ax.plot([0, 1], [i, i], label=f"y{i}")
+    _legend(ax)
+    assert ax.get_legend() is None and "17 lines" in ax.texts[0].get_text()
+    ax.lines[0].remove()
+    _legend(ax)
+    assert ax.get_legend() is not None
+    plt.close(fig)
+    x, y = _through_last(np.array([0.0, 0.1, 0.3]), np.array([0.1, 0.2, 0.05]))
+    assert x[-1] == pytest.approx(0.35) and y[-1] == 0.05
 
 
 def test_plot_missing_store_exits_2(tmp_path):
