@@ -157,7 +157,7 @@ def main() -> None:
 @click.option("--inputs", "inputs_csv", type=click.Path(dir_okay=False), metavar="CSV",
               help="One FMU run alone (SYSTEM is an .fmu): its inputs from a CSV file, first "
               "column time, the others named after the inputs (linear between rows, held "
-              "outside).")
+              "outside; two rows with one time: a step change there).")
 @click.option("--fmu-logging", is_flag=True, help="Instantiate FMUs with logging on and "
               "echo every message they log to stderr as it comes.")
 @click.option("--checkpoint-every", type=float, default=60.0, show_default=True, metavar="S",

@@ -89,3 +89,43 @@ def test_csv_problems_are_listed_at_once(tmp_path: Path, bar_fmus: dict[int, Pat
     res = CliRunner().invoke(main, ["run", str(bar_fmus[1]), "--inputs", str(wrong)])
     assert res.exit_code == 2 and "has no input 'speed'" in res.output
     assert "theta2, omega2" in res.output
+
+
+def test_a_repeated_time_in_the_csv_is_a_step_change(tmp_path: Path) -> None:
+    """Two rows with one time are a step change there (FMPy's input files write them so):
+    the first row's value before it, the second's from it on; it was refused as "times must
+    increase strictly". An integrator fed 0 then 1 from t = 0.5 holds exactly 0.5 at t = 1,
+    with a fixed step that does not land on 0.5 by itself and under `pc`."""
+    import cosimstep
+    from cosimstep.adapters.table import InputTable
+    from helpers import Integrator
+
+    csv = tmp_path / "step.csv"
+    csv.write_text("time,u\n0,0\n0.5,0\n0.5,1\n1,1\n")
+    for controller in (cosimstep.Fixed(0.03), cosimstep.make_controller("pc", None, 1e-6)):
+        table = InputTable.from_csv(csv)
+        assert table.time_events() == [0.5]
+        system = cosimstep.System().add("table", table).add("int", Integrator())
+        system.connect(f"table.{table.outputs[0].name}", "int.u")
+        r = cosimstep.simulate(system, 1.0, controller, cosimstep.MasterOptions("gauss-seidel"))
+        assert r.status == "ok", r.message
+        assert abs(r["int.x"][-1] - 0.5) < 1e-12
+
+
+def test_csv_cells_that_are_not_finite_and_bad_time_orders_are_refused(tmp_path: Path) -> None:
+    """A NaN cell was found only where the run read it (at t = 0, or as a failed run later)."""
+    import pytest
+
+    from cosimstep import ConfigurationError
+    from cosimstep.adapters.table import InputTable
+
+    cases = {"time,u\n0,1\n1,nan\n2,inf\n": ["line 3", "line 4", "not a finite number in u"],
+             "time,u\n0,1\n1,2\n1,3\n1,4\n": ["more than two rows"],
+             "time,u\n0,1\n2,2\n1,3\n": ["must not decrease"]}
+    for i, (text, words) in enumerate(cases.items()):
+        path = tmp_path / f"t{i}.csv"
+        path.write_text(text)
+        with pytest.raises(ConfigurationError) as info:
+            InputTable.from_csv(path)
+        message = str(info.value)
+        assert all(w in message for w in words), message

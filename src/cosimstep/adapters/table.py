@@ -1,10 +1,12 @@
 """Input signals from a table (a CSV file): piecewise-linear in time, as `fmpy simulate` feeds
 a single FMU's continuous inputs.
 
-The first column is time (strictly increasing), the others are signals named by their header.
-Between rows a signal is linear, before the first row and after the last it is held. The
-sub-model gives its slope as the output derivative, so a receiver that follows input
-derivatives sees each segment exactly.
+The first column is time (increasing), the others are signals named by their header.
+Between rows a signal is linear, before the first row and after the last it is held. Two rows
+with the same time are a step change there, as in FMPy's input files: the first row's values
+up to that time, the second's from it on (a time event, so steps land on it). The sub-model
+gives its slope as the output derivative, so a receiver that follows input derivatives sees
+each segment exactly.
 """
 
 from __future__ import annotations
@@ -57,13 +59,16 @@ class InputTable(SubModel):
                 problems.append(Problem(f"{path}: line {i}", f"{len(numbers)} values for "
                                         f"{len(header)} columns", "one value per column"))
                 continue
+            bad = [name for name, v in zip(header, numbers) if not np.isfinite(v)]
+            if bad:
+                problems.append(Problem(f"{path}: line {i}", f"not a finite number in "
+                                        f"{', '.join(bad)}: {row}", "give every cell a value"))
+                continue
             data.append(numbers)
         table = np.array(data, dtype=float).reshape(-1, max(len(header), 1))
         if not problems and len(table) == 0:
             problems.append(Problem(str(path), "no rows", "add rows below the header"))
-        if len(table) > 1 and not np.all(np.diff(table[:, 0]) > 0):
-            problems.append(Problem(f"{path}: {header[0] if header else 'time'}",
-                                    "times must increase strictly", "sort the rows by time"))
+        problems += _time_problems(path, header, table[:, 0] if table.size else table)
         if problems:
             raise ConfigurationError(problems, str(path))
         return cls(table[:, 0], table[:, 1:], header[1:])
@@ -78,21 +83,51 @@ class InputTable(SubModel):
         self._t = t + h
 
     def get_outputs(self) -> np.ndarray:
-        return np.array([np.interp(self._t, self.times, col) for col in self.values.T])
+        """The values now: on the segment that starts at or before now (from a step change's
+        time on, its second row's), held outside the table."""
+        i = self._segment()
+        if i < 0:
+            return self.values[0].copy()
+        if i >= len(self.times) - 1:
+            return self.values[-1].copy()
+        return self.values[i] + (self._t - self.times[i]) * self._slope(i)
 
     def get_output_derivatives(self) -> np.ndarray:
         """The slope of the segment the current time starts (0 outside the table)."""
-        i = int(np.searchsorted(self.times, self._t, side="right")) - 1
+        i = self._segment()
         if i < 0 or i >= len(self.times) - 1:
             return np.zeros(self.values.shape[1])
+        return self._slope(i)
+
+    def _segment(self) -> int:
+        """The last row at or before now (-1: before the table)."""
+        return int(np.searchsorted(self.times, self._t, side="right")) - 1
+
+    def _slope(self, i: int) -> np.ndarray:
         return (self.values[i + 1] - self.values[i]) / (self.times[i + 1] - self.times[i])
 
     def time_events(self) -> list[float]:
-        """The rows inside the table: the slope changes there, steps land on them."""
-        return [float(t) for t in self.times[1:-1]]
+        """The times inside the table (a step change's once): the slope changes or the value
+        jumps there, steps land on them."""
+        return sorted({float(t) for t in self.times[1:-1]})
 
     def save_state(self) -> Any:
         return self._t
 
     def restore_state(self, token: Any) -> None:
         self._t = float(token)
+
+
+def _time_problems(path: Path, header: list[str], times: np.ndarray) -> list[Problem]:
+    """The time column must not decrease; a time may appear twice (a step change), not three
+    times (which value would hold there?)."""
+    where = f"{path}: {header[0] if header else 'time'}"
+    if len(times) < 2:
+        return []
+    steps = np.diff(times)
+    if np.any(steps < 0):
+        return [Problem(where, "times must not decrease", "sort the rows by time")]
+    if np.any((steps[:-1] == 0) & (steps[1:] == 0)):
+        return [Problem(where, "a time appears in more than two rows", "keep two rows at "
+                        "a step change: the value before it and the value from it on")]
+    return []
