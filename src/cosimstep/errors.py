@@ -73,6 +73,39 @@ class StepSizeError(RuntimeError):
     """A step controller cannot continue (for example the step fell below its minimum)."""
 
 
+class RestoreError(RuntimeError):
+    """A sub-model's ``restore_state`` did not bring back the state it saved: every step
+    re-run after a rejection would start from wherever the sub-model had got to."""
+
+
+RESTORE_CHECKS = 3
+"""Rejections per run (per sub-model under multirate) after which the restored sub-models'
+outputs are compared with those stored at the step's start (:func:`restore_problems`)."""
+
+
+def restore_problems(names: list[str], stored: list[np.ndarray], now: list[np.ndarray],
+                     state: list[np.ndarray]) -> str | None:
+    """Why ``restore_state`` failed, or ``None``: per sub-model, the outputs stored at the
+    step's start, those read after the restore, and which of them come from its state (not
+    direct feedthrough, not discrete), compared to within rounding. A restore that does
+    nothing once ground a run down to ``hmin`` on a message about the error estimate. A value
+    that is not finite now is not judged: a sub-model whose trial step just failed may report
+    NaN until it steps again, which is the failure's business, not the restore's."""
+    wrong = []
+    for name, a, b, mask in zip(names, stored, now, state):
+        mask = mask & np.isfinite(b)
+        a, b = a[mask], b[mask]
+        if a.size and not np.all(np.abs(a - b) <= 1e-13 * (1.0 + np.abs(a))):
+            i = int(np.argmax(np.abs(a - b)))
+            wrong.append(f"'{name}' (an output was {a[i]:.6g} at the step's start, "
+                         f"{b[i]:.6g} after restore_state)")
+    if not wrong:
+        return None
+    return (f"restore_state did not bring back the saved state of {', '.join(wrong)}; a "
+            "controller that rejects and re-runs steps needs it: fix save_state/restore_state, "
+            "or declare can_save_state=False and run with a fixed step")
+
+
 ROUND_OFF = 1e-13
 """A step's share of ``tol`` (relative) below which its error estimate is round-off: a
 difference of two runs' outputs resolves no more (about 500 ulps)."""

@@ -20,7 +20,7 @@ import numpy as np
 from cosimstep.checkpoint import Checkpoints, restore
 from cosimstep.controllers import Controller
 from cosimstep.controllers.base import Attempt
-from cosimstep.errors import StepSizeError, SubModelError, still_failing
+from cosimstep.errors import RESTORE_CHECKS, StepSizeError, SubModelError, still_failing
 from cosimstep.kernel import Actor, Budget
 from cosimstep.masters import Master
 from cosimstep.store import Checkpoint, Store
@@ -201,6 +201,8 @@ class ControllerLoop(_Loop):
         self._h = attempt.h_next
         if not attempt.accepted:
             self.rejected += 1
+            if self.rejected <= RESTORE_CHECKS:  # the first few: restored to t?
+                self.runner.check_restored(t, ctx.rows[-1])
             return
         if self.watch is not None and self._crossing_inside(t, h, attempt.y):
             return  # back at t; the next attempt ends on the crossing

@@ -22,7 +22,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from cosimstep.errors import EndOfSimulation, SubModelError
+from cosimstep.errors import EndOfSimulation, RestoreError, SubModelError, restore_problems
 from cosimstep.extrapolation import (
     evaluate,
     midstep_weights,
@@ -546,6 +546,20 @@ class Master:
         self._settle_feedthrough(t, y)
         self._check_finite(range(len(self.system.models)), t, y, None)
         return y
+
+    def check_restored(self, t: float, row: np.ndarray) -> None:
+        """After a rejected step, the sub-models restored to ``t``: raise
+        :class:`~cosimstep.errors.RestoreError` if an output that comes from a sub-model's
+        state differs from ``row``, the values stored at ``t`` (:func:`restore_problems`)."""
+        system = self.system
+        slices = system.output_slices
+        state = ~self._instant & ~self.discrete
+        why = restore_problems(
+            system.names, [row[out] for out in slices],
+            [self._outputs(k, t, None) for k in range(len(system.models))],
+            [state[out] for out in slices])
+        if why is not None:
+            raise RestoreError(why)
 
     def _owners(self, t: float) -> tuple[int, ...]:
         """The models that declared the time event an edge step ends on (the declared time

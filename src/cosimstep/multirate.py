@@ -44,7 +44,14 @@ from typing import Any
 import numpy as np
 
 from cosimstep.controllers.base import StepPolicy
-from cosimstep.errors import StepSizeError, SubModelError, still_failing
+from cosimstep.errors import (
+    RESTORE_CHECKS,
+    RestoreError,
+    StepSizeError,
+    SubModelError,
+    restore_problems,
+    still_failing,
+)
 from cosimstep.events import MAX_EVENTS, DiscreteEventModel, Event
 from cosimstep.extrapolation import (
     evaluate,
@@ -1145,6 +1152,8 @@ class Multirate:
             if self.on_attempt is not None:
                 self.on_attempt(tr.name, t, h, False)
             self._guard(k, t, model.restore_state, token)
+            if tr.rejected <= RESTORE_CHECKS:  # the first few: restored to t?
+                self._check_restored(k, t)
             try:
                 pol.check(t, h, verdict.h_next, verdict.why)
             except StepSizeError as stop:
@@ -1154,6 +1163,16 @@ class Multirate:
                     raise error from tr.failure[0]
                 raise
             tr.h = verdict.h_next
+
+    def _check_restored(self, k: int, t: float) -> None:
+        """Raise :class:`~cosimstep.errors.RestoreError` if ``k``, restored to ``t``, gives
+        outputs from its state other than its track's point there (:func:`restore_problems`)."""
+        caller, out = self._caller, self.system.output_slices[k]
+        state = ~caller._instant[out] & ~caller.discrete[out]
+        why = restore_problems([self.tracks[k].name], [self.tracks[k].rows[-1]],
+                               [caller._outputs(k, t, None)], [state])
+        if why is not None:
+            raise RestoreError(why)
 
     def _meet(self, k: int, t: float, h: float) -> float:
         """The step ``h``, or shorter to end where a partner already is, when that costs at

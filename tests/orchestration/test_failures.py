@@ -292,3 +292,23 @@ def test_simulate_names_every_argument_of_the_wrong_kind(examples):
     for words in ("`controller` must be a Controller", "`master` must be MasterOptions",
                   "`reference` must be a Reference", "make_controller('pc', None, 1e-4)"):
         assert words in text, text
+
+
+@pytest.mark.parametrize("master", ["gauss-seidel", "multirate"])
+def test_a_restore_that_does_nothing_ends_the_run_with_the_reason(master):
+    """A sub-model that claims to restore its state and does not: every re-run started from
+    wherever it had got to, and `pc` ground down to `hmin` with a message about the error
+    estimate. Its outputs after the first rejections are compared with those stored."""
+    from cosimstep import System, make_controller
+    from helpers import Integrator
+
+    class Forgetful(Integrator):
+        def restore_state(self, token):
+            pass
+
+    s = System().add("a", Forgetful()).add("b", Integrator(x0=1.0))
+    s.connect("a.x", "b.u", gain=-1.0).connect("b.x", "a.u")
+    r = simulate(s, 10.0, make_controller("pc", None, 1e-4), MasterOptions(master, 2))
+    assert r.status == "failed"
+    assert "restore_state did not bring back the saved state of 'a'" in r.message
+    assert "hmin" not in r.message and r.calls_spent < 100  # measured 4 and 15 calls
