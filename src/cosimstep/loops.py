@@ -33,6 +33,22 @@ trajectory the master computes (the step that ends on it is then taken again, by
 controller)."""
 
 
+
+def lands(t: float, h: float, landing: float) -> bool:
+    """Whether a step of ``h`` from ``t`` ends within a hair of ``landing`` (the next event or
+    the end time) and is to end on it exactly."""
+    return h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h
+
+
+def landing_step(t: float, h: float, landing: float, cap: float) -> float:
+    """The step from ``t``: ``h``, or exactly to ``landing`` when ``h`` ends within a hair of
+    it (:func:`lands`) — in two halves when that hair would pass ``cap``, the largest step a
+    sub-model accepts (``Capabilities.max_step``, a contract: once passed by a few ulps)."""
+    if not lands(t, h, landing):
+        return h
+    gap = landing - t
+    return gap if gap <= cap else 0.5 * gap
+
 class LoopContext:
     """The :class:`~cosimstep.controllers.StepContext` the loop hands to controllers: the
     stored points extrapolation may use, and steps, saves and restores through the master (a
@@ -281,10 +297,7 @@ class ControllerLoop(_Loop):
         crossing again, and be located again, forever)."""
         if t + self._h == self._located and self._located <= landing:
             return self._h
-        h = min(self._h, self._hmax)
-        if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
-            h = landing - t  # land exactly on the event / end time
-        return h
+        return landing_step(t, min(self._h, self._hmax), landing, self._hmax)
 
     def _store(self, t: float, y: np.ndarray) -> None:
         """Hand the new point to the store, and a checkpoint when one is due."""
@@ -501,9 +514,7 @@ class FixedLoop(_Loop):
                     t, n, clock, carry = run
                     due = self._after_point(n, clock, carry, segment, due)
                     continue
-            h = h_plain
-            if h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h:
-                h = landing - t  # land exactly on the event / end time
+            h = landing_step(t, h_plain, landing, runner.max_step)
             if n + 1 == table.shape[0]:
                 self._grow()
                 table = self.table

@@ -61,7 +61,7 @@ from cosimstep.extrapolation import (
     weight_matrix,
 )
 from cosimstep.kernel import Actor, Budget, Kernel
-from cosimstep.loops import EVENT_TOL, crossing
+from cosimstep.loops import EVENT_TOL, crossing, landing_step
 from cosimstep.masters import Master, MasterOptions
 from cosimstep.race_drift import RaceShift
 from cosimstep.race_memory import PROBE_EVERY, RaceMemory
@@ -1129,10 +1129,9 @@ class Multirate:
         reach = self._reach(k, t)
         chain: list[tuple[float, _Verdict]] = []
         while True:
-            h = self._meet(k, t, min(tr.h, model.capabilities.max_step, pol.hmax, reach))
-            lands = h >= (landing - t) * (1 - 1e-9) or (landing - t) - h < 1e-6 * h
-            if lands:
-                h = landing - t
+            cap = model.capabilities.max_step
+            h = landing_step(t, self._meet(k, t, min(tr.h, cap, pol.hmax, reach)), landing, cap)
+            lands = h == landing - t
             token = self._guard(k, t, model.save_state)
             try:
                 y, slope, inputs, extrapolated, left, step = self._trial(k, token, t, h)

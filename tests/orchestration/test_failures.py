@@ -312,3 +312,35 @@ def test_a_restore_that_does_nothing_ends_the_run_with_the_reason(master):
     assert r.status == "failed"
     assert "restore_state did not bring back the saved state of 'a'" in r.message
     assert "hmin" not in r.message and r.calls_spent < 100  # measured 4 and 15 calls
+
+
+@pytest.mark.parametrize("master, controller", [("gauss-seidel", "fixed"),
+                                                ("gauss-seidel", "pc"), ("multirate", "pc")])
+def test_a_step_that_lands_never_passes_max_step(master, controller):
+    """Landing exactly on the end time a hair past a multiple of ``max_step`` made the last
+    fixed step ``max_step`` + 1e-11, and a sub-model that holds to its limit failed the run;
+    such a landing is now taken in two halves."""
+    import dataclasses
+
+    from cosimstep import Fixed, System, make_controller
+    from helpers import Integrator
+
+    seen = []
+
+    class Strict(Integrator):
+        def do_step(self, t, h):
+            seen.append(h)
+            if h > self.capabilities.max_step:
+                raise RuntimeError(f"a step of {h!r} s is past max_step")
+            super().do_step(t, h)
+
+    s = System()
+    for name, x0 in (("a", 0.0), ("b", 1.0)):
+        model = Strict(x0=x0)
+        model.capabilities = dataclasses.replace(model.capabilities, max_step=0.1)
+        s.add(name, model)
+    s.connect("a.x", "b.u", gain=-1.0).connect("b.x", "a.u")
+    ctrl = Fixed(0.1) if controller == "fixed" else make_controller("pc", None, 1e-6)
+    r = simulate(s, 0.30000000001, ctrl, MasterOptions(master, 2))
+    assert r.status == "ok", r.message
+    assert max(seen) <= 0.1 and r.t_end == 0.30000000001
