@@ -68,10 +68,16 @@ class CouplingError(SubModelError):
 class LoopError(SubModelError):
     """An algebraic loop could not be solved at a communication point."""
 
-    def __init__(self, t: float, outputs: list[str], residual: float, why: str) -> None:
+    def __init__(self, t: float, outputs: list[str], residual: float, why: str,
+                 worst: tuple[str, float, float] | None = None) -> None:
+        """``residual``: the largest ``|g(z) − z| / (1 + |g(z)|)`` (what ``coupling_tol``
+        bounds); ``worst``: that output's name, its value ``g(z)`` and ``|g(z) − z|`` in its
+        own unit, so the message says how far off the loop is, not only its scaled residual."""
         self.model, self.t, self.h, self.residual = "loop", t, None, residual
-        self.reason = (f"the algebraic loop through {', '.join(outputs)} was not solved: "
-                       f"residual {residual:.3g} ({why})")
+        where = "" if worst is None else \
+            f" at {worst[0]} = {worst[1]:.6g}, off by {worst[2]:.3g} (in its unit);"
+        self.reason = (f"the algebraic loop through {', '.join(outputs)} was not solved:"
+                       f"{where} residual {residual:.3g} relative to 1 + |value| ({why})")
         RuntimeError.__init__(self, f"{self.reason} at t = {t:.9g}")
 
 

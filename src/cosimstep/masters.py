@@ -732,8 +732,11 @@ class Master:
         residual = np.abs(out - solution.x) / (tol * (1.0 + np.abs(out)))
         worst = float(np.max(residual)) if residual.size else 0.0
         if not worst <= 1.0:
+            i = int(np.nanargmax(residual)) if np.isfinite(residual).any() else 0
             raise LoopError(t, [system.output_names[j] for j in cols], worst * tol,
-                            str(solution.message))
+                            str(solution.message), (system.output_names[cols[i]],
+                                                    float(out[i]),
+                                                    float(abs(out[i] - solution.x[i]))))
         y[cols] = out
         stats.solves += 1
         stats.residual_max = max(stats.residual_max, worst * tol)
