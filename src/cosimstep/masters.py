@@ -500,16 +500,7 @@ class Master:
             own = self._jumped(out, y_new, history[-1]) if k in owners else []
             jumped += own
             if gauss_seidel and not (edge and self._instant_model[k]):
-                # Later models see this model's fresh values: interpolate through t + h.
-                kept = poly[:, own].copy() if own else None
-                pts = [*times[-p:], t + h] if p > 0 else [t + h]
-                poly[:, out] = taylor_coefficients(pts, _stacked(history[-p:, out], y_new[out])
-                                                   if p > 0 else y_new[None, out], t, p)
-                if kept is not None:
-                    poly[:, own] = kept  # across the event: its own side (see _jumped)
-                self._held_discrete(poly, history[-1])
-                if coef is not poly:
-                    coef[:, out] = self._as_input(poly[:, out], h)
+                self._read_fresh(out, own, poly, coef, t, h, times, history, y_new, p)
         self._settle_feedthrough(t + h, y_new)
         self._check_finite(range(len(self.system.models)), t, y_new, h)
         if edge:
@@ -517,6 +508,22 @@ class Master:
             y_new[jumped] = self.assumed[jumped]
         self.last = y_new
         return y_new
+
+    def _read_fresh(self, out: slice, own: list[int], poly: np.ndarray, coef: np.ndarray,
+                    t: float, h: float, times: Sequence[float], history: np.ndarray,
+                    y_new: np.ndarray, p: int) -> None:
+        """Gauss–Seidel: the models after this one see its fresh values ``y_new[out]``,
+        interpolated through ``t + h`` — but the columns ``own``, which jumped at the time
+        event the step ends on (:meth:`_jumped`), keep their own side."""
+        kept = poly[:, own].copy() if own else None
+        pts = [*times[-p:], t + h] if p > 0 else [t + h]
+        poly[:, out] = taylor_coefficients(pts, _stacked(history[-p:, out], y_new[out])
+                                           if p > 0 else y_new[None, out], t, p)
+        if kept is not None:
+            poly[:, own] = kept
+        self._held_discrete(poly, history[-1])
+        if coef is not poly:
+            coef[:, out] = self._as_input(poly[:, out], h)
 
     def _polynomial(self, t: float, h: float, times: Sequence[float], history: np.ndarray,
                     p: int, end: np.ndarray | None, edge: bool) -> np.ndarray:

@@ -965,14 +965,8 @@ class Multirate:
         k = tr.index
         t0, t_end = tr.times[first], tr.times[-1]
         h = t_end - t0
-        dropped = len(tr.times) - 1 - first
         shortened, cut_at = False, None  # a piece had to be shortened to resolve its inputs
-        del tr.times[first + 1:], tr.rows[first + 1:], tr.steps[first:]
-        if tr.slopes:
-            del tr.slopes[first + 1:]
-        tr.states = {i: s for i, s in tr.states.items() if i <= first}
-        tr.corrections += dropped  # the dropped steps count as re-runs, the new ones as accepted
-        tr.segment = self._segment_start(tr)
+        dropped = self._drop_after(tr, first)
         t, step_try, made = t0, h / pieces, 0
         gain = tr.gain if tr.gain is not None else INITIAL_GAIN
         model = self.system.models[k]
@@ -1003,30 +997,14 @@ class Multirate:
                 continue
             slope = self._slope(k, t + step)
             if inputs is None:
-                # a piece is a step like any other: its consumers must be able to read it
-                # too (a re-run that only resolved its inputs left the quarter car's chassis
-                # stepping 5-20 ms through the wheel hop after an unannounced road step)
-                verdict = self._judge(tr, t, step, y, u, slope, False)
-                if verdict.why is not None and step > tr.policy.hmin:
-                    tr.rejected += 1
-                    self._guard(k, t, model.restore_state, tr.states[at])
-                    step_try = min(verdict.h_next, step)
+                h_next, kept = self._judge_piece(tr, t, step, y, u, slope, tr.states[at])
+                if not kept:
+                    step_try = min(h_next, step)
                     continue
-                tr.spent_out += verdict.spent_out
-                tr.spent_in += verdict.spent_in
-                tr.lag = max(tr.lag, verdict.lag)
-                # a piece's motion is not read (h = 0: kept as they are); read against the
-                # motion before the re-run, the quarter car's pieces through the road step
-                # became shifts estimated at 2,800 x tol (0.12 x delivered)
-                self._lands(k, 0.0, verdict.spent_out, verdict.spent_in)
-                step_try = min(verdict.h_next, h / pieces)
+                step_try = min(h_next, h / pieces)
             made += 1
             start, t = t, t_end if step == t_end - t else t + step
-            # a step onto a time event k declared keeps both sides of what jumped there
-            left = self._left_of_jump(k, start, step, y) \
-                if t == t_end and k in self.declared.get(t, ()) else None
-            tr.steps.append(step)
-            _append(tr, t, y, slope, left)
+            self._append_piece(tr, start, step, t, y, slope)
             if shortened and cut_at is None and t < t_end:
                 cut_at = len(tr.times) - 1
         tr.accepted += made - dropped
@@ -1035,6 +1013,47 @@ class Multirate:
             tr.h = min(tr.h, h / pieces)
         tr.segment = self._segment_start(tr)
         return cut_at
+
+    def _drop_after(self, tr: Track, first: int) -> int:
+        """Drop the track's points after ``first``, to be re-run; returns how many steps
+        went (they count as re-runs, ``corrections``; the new ones as accepted)."""
+        dropped = len(tr.times) - 1 - first
+        del tr.times[first + 1:], tr.rows[first + 1:], tr.steps[first:]
+        if tr.slopes:
+            del tr.slopes[first + 1:]
+        tr.states = {i: s for i, s in tr.states.items() if i <= first}
+        tr.corrections += dropped
+        tr.segment = self._segment_start(tr)
+        return dropped
+
+    def _append_piece(self, tr: Track, start: float, step: float, t: float, y: np.ndarray,
+                      slope: np.ndarray | None) -> None:
+        """A re-run piece's end point; a piece onto a time event its sub-model declared keeps
+        both sides of what jumped there (:meth:`_left_of_jump`)."""
+        left = self._left_of_jump(tr.index, start, step, y) \
+            if tr.index in self.declared.get(t, ()) else None
+        tr.steps.append(step)
+        _append(tr, t, y, slope, left)
+
+    def _judge_piece(self, tr: Track, t: float, step: float, y: np.ndarray, u: np.ndarray,
+                     slope: np.ndarray | None, token: Any) -> tuple[float, bool]:
+        """A piece of a re-run judged as any step: its consumers must be able to read it too
+        (a re-run that only resolved its inputs left the quarter car's chassis stepping 5-20 ms
+        through the wheel hop after an unannounced road step). Returns the next step and
+        whether the piece is kept; a rejected one is restored to ``token``."""
+        verdict = self._judge(tr, t, step, y, u, slope, False)
+        if verdict.why is not None and step > tr.policy.hmin:
+            tr.rejected += 1
+            self._guard(tr.index, t, self.system.models[tr.index].restore_state, token)
+            return verdict.h_next, False
+        tr.spent_out += verdict.spent_out
+        tr.spent_in += verdict.spent_in
+        tr.lag = max(tr.lag, verdict.lag)
+        # a piece's motion is not read (h = 0: kept as they are); read against the motion
+        # before the re-run, the quarter car's pieces through the road step became shifts
+        # estimated at 2,800 x tol (0.12 x delivered)
+        self._lands(tr.index, 0.0, verdict.spent_out, verdict.spent_in)
+        return verdict.h_next, True
 
     def _unresolved(self, tr: Track, t: float, step: float, u: np.ndarray,
                     gain: float) -> float | None:

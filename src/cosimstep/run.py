@@ -577,8 +577,10 @@ class Run:
                     bar.close()
         wall = time.perf_counter() - wall0
         result = self._result(status, message + resumed, wall, reference, sink)
-        if failure is not None and status == "failed":
-            result.traceback = "".join(traceback.format_exception(failure))
+        # an interrupt is the caller's to raise (simulate: RunInterrupted, with the result)
+        failed = failure if status == "failed" else None
+        if failed is not None:
+            result.traceback = "".join(traceback.format_exception(failed))
         if amend is not None:
             amend(result)
         _say_beyond_tolerance(result, getattr(scheme, "controller", None))
@@ -587,8 +589,8 @@ class Run:
                         result.summary(), result.calls, result.time_in_models,
                         symbols=result.symbol_table())
             sink.close()
-        if failure is not None and raise_on_failure and status != "interrupted":
-            raise failure
+        if failed is not None and raise_on_failure:
+            raise failed
         return result
 
     def _drive(self, sink: Store | None,
