@@ -87,10 +87,11 @@ def restore_problems(names: list[str], stored: list[np.ndarray], now: list[np.nd
                      state: list[np.ndarray]) -> str | None:
     """Why ``restore_state`` failed, or ``None``: per sub-model, the outputs stored at the
     step's start, those read after the restore, and which of them come from its state (not
-    direct feedthrough, not discrete), compared to within rounding. A restore that does
-    nothing once ground a run down to ``hmin`` on a message about the error estimate. A value
-    that is not finite now is not judged: a sub-model whose trial step just failed may report
-    NaN until it steps again, which is the failure's business, not the restore's."""
+    direct feedthrough, not discrete), compared to within rounding: without this a restore
+    that does nothing makes every re-run start wherever the sub-model had got to, and the
+    run ends on a step size far below anything the error asks for. A value that is not finite
+    now is not judged: a sub-model whose trial step just failed may report NaN until it steps
+    again, which is the failure's business, not the restore's."""
     wrong = []
     for name, a, b, mask in zip(names, stored, now, state):
         mask = mask & np.isfinite(b)
@@ -144,3 +145,8 @@ class RunInterrupted(KeyboardInterrupt):
     def __init__(self, result: Any) -> None:
         super().__init__(result.message)
         self.result = result
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # rebuilt from its result (the default would pass the message as the result): a run
+        # in a worker process of a pool comes back whole
+        return (type(self), (self.result,))

@@ -33,7 +33,6 @@ trajectory the master computes (the step that ends on it is then taken again, by
 controller)."""
 
 
-
 def lands(t: float, h: float, landing: float) -> bool:
     """Whether a step of ``h`` from ``t`` ends within a hair of ``landing`` (the next event or
     the end time) and is to end on it exactly."""
@@ -48,6 +47,7 @@ def landing_step(t: float, h: float, landing: float, cap: float) -> float:
         return h
     gap = landing - t
     return gap if gap <= cap else 0.5 * gap
+
 
 class LoopContext:
     """The :class:`~cosimstep.controllers.StepContext` the loop hands to controllers: the
@@ -519,9 +519,7 @@ class FixedLoop(_Loop):
                 self._grow()
                 table = self.table
                 flat, base = table.reshape(-1), table.ctypes.data
-            # a step onto a time event is the master's own (an edge: Master.step)
-            onto_event = landing == event and h == event - t
-            if lean is not None and not onto_event and (
+            if lean is not None and not self._onto_event(t, h, landing, event) and (
                     not lean_after or (n - segment >= lean_after and h == h_plain)):
                 lean.step(t, h, n, flat, base)
             else:
@@ -542,6 +540,11 @@ class FixedLoop(_Loop):
                 runner.restart()
             due = self._after_point(n, clock, carry, segment, due)
         self._state = (clock, carry, segment, due)
+
+    def _onto_event(self, t: float, h: float, landing: float, event: float) -> bool:
+        """Whether a step of ``h`` from ``t`` lands on a time event (not the end time): such
+        a step is the master's own (an edge, :meth:`Master.step`), never the lean kernel's."""
+        return landing == event and h == event - t and (event < self.until or self.final_event)
 
     def _general_step(self, t: float, h: float, n: int, segment: int, event: float) -> None:
         """The master's general step from row ``n`` into row ``n + 1``; ``event``: the time

@@ -561,10 +561,12 @@ class Master:
         system = self.system
         slices = system.output_slices
         state = ~self._instant & ~self.discrete
-        why = restore_problems(
-            system.names, [row[out] for out in slices],
-            [self._outputs(k, t, None) for k in range(len(system.models))],
-            [state[out] for out in slices])
+        try:
+            now = [self._outputs(k, t, None) for k in range(len(system.models))]
+        except SubModelError:
+            return  # that is the failure's business (the step is retried), not the restore's
+        why = restore_problems(system.names, [row[out] for out in slices], now,
+                               [state[out] for out in slices])
         if why is not None:
             raise RestoreError(why)
 

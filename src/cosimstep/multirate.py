@@ -996,15 +996,21 @@ class Multirate:
                 inputs = None
                 continue
             slope = self._slope(k, t + step)
+            end = t_end if step == t_end - t else t + step
+            # a piece onto a time event k declared keeps both sides of what jumped there
+            left = self._left_of_jump(k, t, step, y) if k in self.declared.get(end, ()) \
+                else None
             if inputs is None:
-                h_next, kept = self._judge_piece(tr, t, step, y, u, slope, tr.states[at])
+                h_next, kept = self._judge_piece(tr, t, step, y if left is None else left, u,
+                                                 slope, tr.states[at], left is not None)
                 if not kept:
                     step_try = min(h_next, step)
                     continue
                 step_try = min(h_next, h / pieces)
             made += 1
-            start, t = t, t_end if step == t_end - t else t + step
-            self._append_piece(tr, start, step, t, y, slope)
+            t = end
+            tr.steps.append(step)
+            _append(tr, t, y, slope, left)
             if shortened and cut_at is None and t < t_end:
                 cut_at = len(tr.times) - 1
         tr.accepted += made - dropped
@@ -1026,22 +1032,14 @@ class Multirate:
         tr.segment = self._segment_start(tr)
         return dropped
 
-    def _append_piece(self, tr: Track, start: float, step: float, t: float, y: np.ndarray,
-                      slope: np.ndarray | None) -> None:
-        """A re-run piece's end point; a piece onto a time event its sub-model declared keeps
-        both sides of what jumped there (:meth:`_left_of_jump`)."""
-        left = self._left_of_jump(tr.index, start, step, y) \
-            if tr.index in self.declared.get(t, ()) else None
-        tr.steps.append(step)
-        _append(tr, t, y, slope, left)
-
     def _judge_piece(self, tr: Track, t: float, step: float, y: np.ndarray, u: np.ndarray,
-                     slope: np.ndarray | None, token: Any) -> tuple[float, bool]:
+                     slope: np.ndarray | None, token: Any, at_jump: bool) -> tuple[float, bool]:
         """A piece of a re-run judged as any step: its consumers must be able to read it too
         (a re-run that only resolved its inputs left the quarter car's chassis stepping 5-20 ms
-        through the wheel hop after an unannounced road step). Returns the next step and
-        whether the piece is kept; a rejected one is restored to ``token``."""
-        verdict = self._judge(tr, t, step, y, u, slope, False)
+        through the wheel hop after an unannounced road step). ``y``: its end, the left limit
+        where it ends on a jump (``at_jump``: no alias check, as at any event). Returns the
+        next step and whether the piece is kept; a rejected one is restored to ``token``."""
+        verdict = self._judge(tr, t, step, y, u, slope, at_jump)
         if verdict.why is not None and step > tr.policy.hmin:
             tr.rejected += 1
             self._guard(tr.index, t, self.system.models[tr.index].restore_state, token)
@@ -1187,8 +1185,12 @@ class Multirate:
         outputs from its state other than its track's point there (:func:`restore_problems`)."""
         caller, out = self._caller, self.system.output_slices[k]
         state = ~caller._instant[out] & ~caller.discrete[out]
-        why = restore_problems([self.tracks[k].name], [self.tracks[k].rows[-1]],
-                               [caller._outputs(k, t, None)], [state])
+        try:
+            now = caller._outputs(k, t, None)
+        except SubModelError:
+            return  # that is the failure's business (the step is retried), not the restore's
+        why = restore_problems([self.tracks[k].name], [self.tracks[k].rows[-1]], [now],
+                               [state])
         if why is not None:
             raise RestoreError(why)
 

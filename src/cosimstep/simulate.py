@@ -83,7 +83,9 @@ def simulate(
         Raise the failure instead of returning a result with ``status = "failed"``.
         An interrupted run (Ctrl-C, SIGTERM) always raises, once everything it computed is
         stored: :class:`~cosimstep.errors.RunInterrupted`, a ``KeyboardInterrupt`` whose
-        ``result`` is the run's result (status ``interrupted``), so that a script stops too.
+        ``result`` is the run's result (status ``interrupted``; the first run's where a repeat
+        was stopped; the looser twin's where ``estimate="rerun"`` was stopped in that), so
+        that a script stops too.
     estimate:
         How an adaptive run estimates the global error it delivered
         (``SimulationResult.error_estimate``), without a reference: ``"sum"`` (free) adds up
@@ -221,8 +223,11 @@ def _repeat(first: SimulationResult, factor: float, forget: bool, pristine: Cont
             _calibrate(result, first, measure, tol)
 
     # a failing repeat is reported, not raised: the first run is a whole result to fall back on
-    second = once(for_repeat(pristine, factor, forget), remaining, None,
-                  {**(config or {}), "tightened": facts}, amend, repeat=True)
+    try:
+        second = once(for_repeat(pristine, factor, forget), remaining, None,
+                      {**(config or {}), "tightened": facts}, amend, repeat=True)
+    except RunInterrupted:  # stopped in the repeat's looser twin: the first run stands
+        raise RunInterrupted(first) from None
     at = f"at tol {tol * factor:.3g}" + (f" (run {second.run_id})" if second.run_id else "") \
         + (" without the error memory" if forget else "")
     estimate = (second.tightened or {}).get("estimate_alone", second.error_estimate)

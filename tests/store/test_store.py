@@ -135,6 +135,9 @@ def test_an_interrupt_inside_a_store_write_loses_nothing_and_raises_nothing(exam
             cosimstep.simulate(spec.system, 10.0, cosimstep.Fixed(1e-4), store=db)
     assert runs == 1 and isinstance(info.value, KeyboardInterrupt)
     result = info.value.result
+    import pickle  # a run in a worker process comes back whole
+
+    assert pickle.loads(pickle.dumps(info.value)).result.message == result.message
     assert result.status == "interrupted"
     stored = read_run(db)
     assert stored.status == "interrupted"

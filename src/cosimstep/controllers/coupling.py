@@ -453,17 +453,16 @@ class Doubling(_PolicyController):
     Gauss–Seidel the first sub-model to step extrapolates its partners in both runs; where a
     partner then does something its history did not foretell (an unannounced jump inside the
     second half of the step, a transient starting there) both runs extrapolate the same
-    nothing, agree, and the step is accepted whatever it missed: the quarter car with its road
-    step unannounced, every sub-model holding its inputs, delivered 23 / 311 / 3,100 × tol at
-    tol 1e-2 / 1e-3 / 1e-4 under ``pc``, whose estimate said 1e-4 … 0.03 of that. The inputs'
-    own misses show it at no cost: the second half's miss at ``t + h`` (the partner's new value
-    against what the receivers assumed) should be about ``2^-(q+1)`` of the whole step's
-    (:meth:`_unforeseen`). Where it is not, the second half is run again with its inputs
-    interpolated through the values the partners reached (one more call per sub-model), and the
-    response, scaled from the mean input change the correction made, ``|d|/(q+2)`` for a miss
-    ``d`` growing like ``(s/h)^(q+1)``, to a miss of ``|d|`` over the whole step (a jump at its
-    start), bounds the error: ``(q + 2) · |y_c − y|``. The corrected run is kept.
-    docs/concepts.md, "Step doubling and what the first mover did not see".
+    nothing, agree, and the step would be kept whatever it missed. The inputs' own misses show
+    it at no cost: the second half's miss at ``t + h`` (the partner's new value against what
+    the receivers assumed) should be as much smaller than the whole step's as its nearer
+    points make an extrapolation's error (:func:`_unforeseen`). Where it is not, the second
+    half is run again with its inputs interpolated through the values the partners reached
+    (one more call per sub-model), and its response bounds the error: the correction changed
+    the input by ``|d|/(q+2)`` on average (a miss ``d`` growing like ``(s/h)^(q+1)``) where
+    the true input may have been off by ``|d|`` throughout (a jump at the half's start), so
+    the bound is ``(q + 2) · |y_c − y|``. The corrected run is kept. docs/concepts.md, "Step
+    doubling and what the first mover did not see", has the measurements.
     """
 
     name = "doubling"
@@ -480,7 +479,8 @@ class Doubling(_PolicyController):
         y = ctx.step(t + 0.5 * h, 0.5 * h, extra=extra)
         error = (y_full - y) / (2.0 ** (q + 1) - 1.0)
         missed, _ = ctx.defect()
-        if _unforeseen(missed, missed_full, mask, q, y):
+        shrink = _shrink(ctx.times, t, h, q)
+        if _unforeseen(missed, missed_full, mask, shrink, self.policy.scale(y), y):
             ctx.restore(half)
             y_c = ctx.step(t + 0.5 * h, 0.5 * h, order=q + 1, end=y, extra=extra)
             self.unforeseen += 1
@@ -490,19 +490,35 @@ class Doubling(_PolicyController):
         return self._decide(ctx, token, t, h, y, error, y, q + 1, ctx.names)
 
 
-def _unforeseen(missed: np.ndarray, missed_full: np.ndarray, mask: np.ndarray, q: int,
-                y: np.ndarray) -> bool:
-    """Whether the second half step's inputs missed the partners' new values by more than
-    step doubling assumes: above round-off and more than ``2^-(q+1)/2`` of the whole step's
-    miss — the geometric middle between a miss that shrinks as an extrapolation of degree
-    ``q`` does when halved (``2^-(q+1)``; less still with the half step's nearer points) and
-    one that did not shrink at all (a change no history foretold)."""
+def _shrink(times: list[float], t: float, h: float, q: int) -> float:
+    """How much smaller than the whole step's the second half's extrapolation miss at
+    ``t + h`` should be for a smooth partner: an extrapolation of degree ``q`` misses by its
+    next derivative times the product of the distances from ``t + h`` to its ``q + 1`` points,
+    so the ratio of the two products (the half's points: the history's and ``t + h/2``).
+    Equal steps at ``q = 2`` give 1/6; after a step grew fivefold, 0.36."""
+    whole = [t + h - s for s in times[-(q + 1):]]
+    nearer = [t + h - s for s in [*times, t + 0.5 * h][-(q + 1):]]
+    return math.prod(nearer) / math.prod(whole)
+
+
+def _unforeseen(missed: np.ndarray, missed_full: np.ndarray, mask: np.ndarray, shrink: float,
+                scale: np.ndarray, y: np.ndarray) -> bool:
+    """Whether the second half step's inputs missed the partners' new values by more than a
+    smooth partner allows: the largest scaled miss (over the extrapolated outputs whose miss
+    is above round-off) beyond ``√shrink`` × the whole step's — the geometric middle between
+    the miss that shrank as an extrapolation's does (:func:`_shrink`) and one that did not
+    shrink at all (a change no history foretold). Read over all outputs at once: one output's
+    ratio alone is arbitrary where its miss passes through zero."""
     cols = np.flatnonzero(mask)
     if not cols.size:
         return False
     now = np.abs(missed[cols])
-    above_noise = now > 1e3 * np.finfo(float).eps * np.maximum(np.abs(y[cols]), 1e-300)
-    return bool(np.any(above_noise & (now > 2.0 ** (-(q + 1) / 2) * np.abs(missed_full[cols]))))
+    real = now > 1e3 * np.finfo(float).eps * np.maximum(np.abs(y[cols]), 1e-300)
+    if not real.any():
+        return False
+    unit = scale[cols]
+    largest = float(np.max(now[real] / unit[real]))
+    return largest > math.sqrt(shrink) * float(np.max(np.abs(missed_full[cols]) / unit))
 
 
 class Embedded(_PolicyController):
