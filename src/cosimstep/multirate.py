@@ -1037,8 +1037,9 @@ class Multirate:
         """A piece of a re-run judged as any step: its consumers must be able to read it too
         (a re-run that only resolved its inputs left the quarter car's chassis stepping 5-20 ms
         through the wheel hop after an unannounced road step). ``y``: its end, the left limit
-        where it ends on a jump (``at_jump``: no alias check, as at any event). Returns the
-        next step and whether the piece is kept; a rejected one is restored to ``token``."""
+        where it ends on a jump of an output at its sub-model's time event (``at_jump``: no
+        alias check there, the slope belongs to the next segment). Returns the next step and
+        whether the piece is kept; a rejected one is restored to ``token``."""
         verdict = self._judge(tr, t, step, y, u, slope, at_jump)
         if verdict.why is not None and step > tr.policy.hmin:
             tr.rejected += 1
