@@ -218,7 +218,8 @@ class ControllerLoop(_Loop):
         if not attempt.accepted:
             self.rejected += 1
             if self.rejected <= RESTORE_CHECKS:  # the first few: restored to t?
-                self.runner.check_restored(t, ctx.rows[-1])
+                row, slices = ctx.rows[-1], self.runner.system.output_slices
+                self.runner.check_restored(t, [row[out] for out in slices])
             return
         if self.watch is not None and self._crossing_inside(t, h, attempt.y):
             return  # back at t; the next attempt ends on the crossing

@@ -554,18 +554,21 @@ class Master:
         self._check_finite(range(len(self.system.models)), t, y, None)
         return y
 
-    def check_restored(self, t: float, row: np.ndarray) -> None:
-        """After a rejected step, the sub-models restored to ``t``: raise
-        :class:`~cosimstep.errors.RestoreError` if an output that comes from a sub-model's
-        state differs from ``row``, the values stored at ``t`` (:func:`restore_problems`)."""
+    def check_restored(self, t: float, stored: Sequence[np.ndarray],
+                       models: Sequence[int] | None = None) -> None:
+        """After a rejected step, the sub-models ``models`` (default: all) restored to ``t``:
+        raise :class:`~cosimstep.errors.RestoreError` if an output that comes from a
+        sub-model's state differs from ``stored`` (each one's outputs stored at ``t``;
+        :func:`restore_problems`). The multi-rate master checks its tracks one at a time."""
         system = self.system
-        slices = system.output_slices
+        ks = range(len(system.models)) if models is None else models
+        slices = [system.output_slices[k] for k in ks]
         state = ~self._instant & ~self.discrete
         try:
-            now = [self._outputs(k, t, None) for k in range(len(system.models))]
+            now = [self._outputs(k, t, None) for k in ks]
         except SubModelError:
             return  # that is the failure's business (the step is retried), not the restore's
-        why = restore_problems(system.names, [row[out] for out in slices], now,
+        why = restore_problems([system.names[k] for k in ks], list(stored), now,
                                [state[out] for out in slices])
         if why is not None:
             raise RestoreError(why)
@@ -599,8 +602,7 @@ class Master:
         the step's extrapolation has order 0 (it foresees no change, so every output that
         moves would count as jumped): there the new value is still interpolated through."""
         cols = np.arange(out.start, out.stop)
-        own = self.assumed[cols]
-        jump = np.abs(y_new[cols] - own) > np.abs(own - start[cols])
+        jump = jumped(y_new[cols], self.assumed[cols], start[cols])
         jump &= ~self.discrete[cols] & ~self._instant[cols]
         return cols[jump].tolist()
 
@@ -914,6 +916,15 @@ def _instant_outputs(system: CompiledSystem) -> tuple[np.ndarray, list[bool]]:
         if models[-1]:  # (most models have none: their ports need no look)
             mask[columns] = [bool(feedthrough.get(port.name)) for port in m.outputs]
     return mask, models
+
+
+def jumped(new: np.ndarray, own: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """Which outputs read at a time event their sub-model declared are already on its far
+    side: those that missed their own extrapolation ``own`` by more than the whole change it
+    foresaw from ``start`` (a continuous output misses by the extrapolation's error, of higher
+    order in the step than the change). The one rule of :meth:`Master._jumped` and
+    :meth:`cosimstep.multirate.Multirate._left_of_jump`."""
+    return np.abs(new - own) > np.abs(own - start)
 
 
 def _declared_events(system: CompiledSystem) -> tuple[np.ndarray, list[tuple[int, ...]]]:

@@ -46,10 +46,8 @@ import numpy as np
 from cosimstep.controllers.base import StepPolicy
 from cosimstep.errors import (
     RESTORE_CHECKS,
-    RestoreError,
     StepSizeError,
     SubModelError,
-    restore_problems,
     still_failing,
 )
 from cosimstep.events import MAX_EVENTS, DiscreteEventModel, Event
@@ -62,7 +60,7 @@ from cosimstep.extrapolation import (
 )
 from cosimstep.kernel import Actor, Budget, Kernel
 from cosimstep.loops import EVENT_TOL, crossing, landing_step
-from cosimstep.masters import Master, MasterOptions
+from cosimstep.masters import Master, MasterOptions, jumped
 from cosimstep.race_drift import RaceShift
 from cosimstep.race_memory import PROBE_EVERY, RaceMemory
 from cosimstep.system import CompiledSystem
@@ -1170,7 +1168,7 @@ class Multirate:
                 self.on_attempt(tr.name, t, h, False)
             self._guard(k, t, model.restore_state, token)
             if tr.rejected <= RESTORE_CHECKS:  # the first few: restored to t?
-                self._check_restored(k, t)
+                self._caller.check_restored(t, [tr.rows[-1]], [k])
             try:
                 pol.check(t, h, verdict.h_next, verdict.why)
             except StepSizeError as stop:
@@ -1180,20 +1178,6 @@ class Multirate:
                     raise error from tr.failure[0]
                 raise
             tr.h = verdict.h_next
-
-    def _check_restored(self, k: int, t: float) -> None:
-        """Raise :class:`~cosimstep.errors.RestoreError` if ``k``, restored to ``t``, gives
-        outputs from its state other than its track's point there (:func:`restore_problems`)."""
-        caller, out = self._caller, self.system.output_slices[k]
-        state = ~caller._instant[out] & ~caller.discrete[out]
-        try:
-            now = caller._outputs(k, t, None)
-        except SubModelError:
-            return  # that is the failure's business (the step is retried), not the restore's
-        why = restore_problems([self.tracks[k].name], [self.tracks[k].rows[-1]], [now],
-                               [state])
-        if why is not None:
-            raise RestoreError(why)
 
     def _meet(self, k: int, t: float, h: float) -> float:
         """The step ``h``, or shorter to end where a partner already is, when that costs at
@@ -1355,7 +1339,7 @@ class Multirate:
         start = max(tr.segment, len(tr.times) - (self.order + 1))
         at = np.array([t + h])
         own = self._fill(tr, list(range(len(y))), at, start, len(tr.times), True)[0]
-        jump = np.abs(y - own) > np.abs(own - tr.rows[-1])
+        jump = jumped(y, own, tr.rows[-1])
         cols = self.changing.get(k)
         if cols is not None:
             jump[cols] = False  # discrete outputs: held, located as state events
