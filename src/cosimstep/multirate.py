@@ -677,9 +677,10 @@ class Multirate:
                 tr.gain_h = h
             elif pieces == 1 and tr.gain is None:
                 tr.gain, tr.gain_h = gain, h
-        if rounds >= MAX_RESYNC:
-            return False
         moved = float(np.max(change / tr.policy.scale(tr.rows[-1])))
+        if rounds >= MAX_RESYNC:  # the consumers keep what they read: the estimate has it
+            self._resynchronize(k, t0, moved, rounds + 1, roll=False)
+            return False
         # a track whose step ended on a located discrete change keeps its whole step: a cut
         # would leave that change recorded at a time the track no longer reaches
         if cut_at is not None and k not in self.changing \
@@ -858,7 +859,8 @@ class Multirate:
             response += np.abs(halves(down, up) - plain)
         return response
 
-    def _resynchronize(self, k: int, t0: float, moved: float, rounds: int) -> bool:
+    def _resynchronize(self, k: int, t0: float, moved: float, rounds: int,
+                       roll: bool = True) -> bool:
         """Roll back the consumers of ``k`` that read its provisional trajectory after ``t0``
         where the correction moved it too much for their tolerance (thesis 4.3.5: partial
         re-synchronization by rollback).
@@ -868,15 +870,18 @@ class Multirate:
         correction's change at the step's end (scaled); the consumer's error from it is about
         its sensitivity × the time it ran on the old trajectory × ``moved / 2`` (the change
         grows from nothing at ``t0``). Returns whether any consumer was rolled back.
+        Without ``roll`` (the chain's rounds are spent, :data:`MAX_RESYNC`) every consumer
+        keeps its error; so does one with no saved state to go back to. Either way the run's
+        estimate is told of it.
         """
         rolled = False
         for c in self._past(k, t0):
             if not _beyond(self.tracks[c].t, t0):
                 continue  # rolled back already with another consumer it reads
             ratio, kept = self._kept(k, c, t0, moved)
-            if ratio > 1.0:
-                rolled |= self._rollback(c, t0, k, rounds)
-            else:  # within its tolerance, but an error all the same: the run's estimate has it
+            if ratio > 1.0 and roll and self._rollback(c, t0, k, rounds):
+                rolled = True
+            else:  # within its tolerance (or kept): an error all the same, the estimate has it
                 self.tracks[c].spent_in += kept * self.tracks[c].policy.tol
                 # made over the stretch c ran on the old trajectory, no step of its own: kept
                 # as it is (h = 0)
@@ -912,7 +917,10 @@ class Multirate:
             tr.missed_rollbacks += 1
             return False
         i = max(candidates)
-        tr.resync = (max(rounds, tr.resync[0]), max(tr.t, tr.resync[1]))
+        # a chain's round carries over only while the track still re-runs that chain's
+        # stretch: past it, this rollback starts a round of its own (MAX_RESYNC)
+        carried = tr.resync[0] if tr.t < tr.resync[1] else 0
+        tr.resync = (max(rounds, carried), max(tr.t, tr.resync[1]))
         self._truncate(tr, i)
         tr.rollbacks += 1
         tr.pending = None

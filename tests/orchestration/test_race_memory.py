@@ -54,15 +54,16 @@ def test_a_probe_leaves_the_race_where_it_was(races, monkeypatch) -> None:
 
 def test_a_damped_system_is_given_its_memory(races) -> None:
     # damping ratios 0.3 and 0.93: measured (tol 1e-3) memories of 4.6-6.5 s of the 10 s run
-    # while the motion lasts (the longest of the last three probes), err/tol 0.49 with 530
-    # calls (0.19 and 400 calls without the memory; the probes took 86)
+    # while the motion lasts (the longest of the last three probes), err/tol 0.24 with 576
+    # calls (0.13 and 423 calls without the memory; 0.49 and 0.19 before a new chain of
+    # corrections got its own rounds, Multirate._rollback)
     result = _run("two_mass_damped", 1e-3)
     probes = races[0]
     measured = [m for _, m, _ in probes.probes.measured]
     used = [max(measured[i - 3:i]) for i in range(3, len(measured) + 1)]
     assert result.success
     assert min(used) < 0.7 * 10.0
-    assert 0.3 <= result.error.max_scaled / 1e-3 <= 10.0
+    assert 0.18 <= result.error.max_scaled / 1e-3 <= 10.0
     assert all(tr.policy.memory == probes.memory for tr in probes.race.tracks)
 
 
