@@ -179,6 +179,11 @@ def test_who_is_repeated_and_by_how_much() -> None:
     assert tighten.tightening("ok", 5e-3, pc, multirate=True) is None
     pc.took_estimates(5e-3, 2e-3)
     assert tighten.tightening("ok", 5e-3, pc, multirate=True) == pytest.approx(0.2)
+    # ... or where the estimate itself is past the band, whatever it is made of
+    pc.took_estimates(1.4e-2, 1e-2)
+    assert tighten.tightening("ok", 1.4e-2, pc, multirate=True) == pytest.approx(1 / 14)
+    pc.took_estimates(1e-2, 1e-2)
+    assert tighten.tightening("ok", 1e-2, pc, multirate=True) is None  # at the band: not past
     assert tighten.tightening("failed", 5e-3, pc, multirate=False) is None
     assert tighten.tightening("ok", None, pc, multirate=False) is None
     assert tighten.tightening("ok", math.nan, pc, multirate=False) is None
