@@ -872,7 +872,7 @@ class Multirate:
         grows from nothing at ``t0``). Returns whether any consumer was rolled back.
         Without ``roll`` (the chain's rounds are spent, :data:`MAX_RESYNC`) every consumer
         keeps its error; so does one with no saved state to go back to. Either way the run's
-        estimate is told of it.
+        estimate is told of it (not of what their own consumers keep in turn).
         """
         rolled = False
         for c in self._past(k, t0):
