@@ -22,9 +22,10 @@ accuracy the estimate cannot tell apart from noise (an estimate 1.06 × tol repe
 Only controllers whose estimate was measured within that spread steer by it
 (a controller's ``trusted_estimate``: ``pc``'s): under the synchronous masters, and under
 the multi-rate one where the time shift is most of its estimate (:mod:`~cosimstep.race_drift`,
-:func:`tightening`) or the estimate is past ``BAND`` × tol. The estimate that decides is the run's ``error_estimate``: the summed one
-by default, the companion's or the re-run's where ``simulate(estimate=...)`` asks for them
-(both measured closer to the error than the sum on the suite). The repeat is one, and it is
+:func:`tightening`) or the estimate is past ``BAND`` × tol. The estimate that decides is the
+run's ``error_estimate``: the summed one by default, the companion's or the re-run's where
+``simulate(estimate=...)`` asks for them (both measured closer to the error than the sum on
+the suite). The repeat is one, and it is
 kept only if it ended ok with an estimate of its own no higher than the first run's
 (:func:`keeps_repeat`); where its estimate still exceeds the tolerance asked for
 its message says so; and it is never more than ``MOST`` times tighter — a run whose estimate
