@@ -201,7 +201,7 @@ def test_console_script_demo(tmp_path):
     stored = runs(tmp_path / "demo.db")
     assert [s for _, _, s in stored] == ["ok"] * 3
     # the adaptive runs within their tolerance 1e-4, with fewer calls and less error than the
-    # fixed step (measured: fixed 4000 calls, 2.1e-4; pc 2856, 1.2e-4; multirate 2172, 5.8e-5)
+    # fixed step (measured: fixed 4000 calls, 2.1e-4; pc 2856, 1.2e-4; multirate 2162, 5.7e-5)
     rows = {line.split()[0]: line.split() for line in proc.stdout.splitlines()[1:4]}
     calls = {k: int(v[-3]) for k, v in rows.items()}
     errors = {k: float(v[-2]) for k, v in rows.items()}
