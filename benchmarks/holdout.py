@@ -327,7 +327,8 @@ def document(rows: list[dict], minutes: float) -> str:
              "default; calls count both runs, \"(repeat)\" where the repeat is the result, "
              "\"(first)\" where the repeat was not kept and the first run is the result): "
              "`pc` under Gauss–Seidel, and the multi-rate master (repeated only where its "
-             "estimate is mostly a time shift); order 2. err/tol in bold: outside "
+             "estimate is mostly a time shift or past 10 × tol); order 2. err/tol in bold: "
+             "outside "
              "[0.1, 10]; estimate = the run's own `error_estimate` over the measured error.",
              "",
              "| system | tol | `pc` err/tol | estimate/err | calls | multirate err/tol | "

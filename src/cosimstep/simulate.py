@@ -116,7 +116,7 @@ def simulate(
     tighten:
         Repeat the run once at a tighter tolerance when its own error estimate exceeds twice
         ``tol`` (controller ``pc``; under the multi-rate master only where its time shift is
-        most of the estimate; :mod:`cosimstep.tighten`): the
+        most of the estimate or the estimate is past 10 × ``tol``; :mod:`cosimstep.tighten`): the
         tolerance reduced by the factor the estimate missed by, at most 1000-fold, and where
         the summed estimate's time shift is its larger part (a limit cycle's phase error)
         without the error memory (:func:`~cosimstep.tighten.for_repeat`). The repeat is

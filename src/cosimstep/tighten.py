@@ -63,13 +63,10 @@ def tightening(status: str, estimate: float | None, controller: Any, *,
     ``multirate``: it ran under the multi-rate master, which is repeated only where the time
     shift is the larger part of its estimate (:func:`along_motion`) or where the estimate
     itself is past ``BAND`` × tol: the run says it broke the promise, whatever the estimate is
-    made of (the Oregonator out of sample, tol 1e-2: estimated at 14 × tol, mostly no shift,
-    measured 70 ×; repeated, 27 ×). Why the shift otherwise: every multi-rate
-    run past 10 × tol on the suite and the holdout systems (12 of 145 cells, all relaxation
-    oscillators) was such a run, its plain sum past 2 × tol on one of them only; repeating
-    on the plain sum too (tried) moved 4 more suite cells below 0.1 × tol, runs that were in
-    the band, for 1.7 × the calls instead of 1.4 × (docs/concepts.md, "The multi-rate
-    estimate with a time shift")."""
+    made of. Why the shift otherwise: where the rule was built, the multi-rate runs past
+    10 × tol were such runs, and repeating on the plain sum as well bought accuracy the band
+    did not ask for on runs that were in it (docs/concepts.md, "The multi-rate estimate with a
+    time shift, and its repeat")."""
     if status != "ok" or estimate is None or not may_repeat(controller):
         return None
     ratio = estimate / controller.policy.tol
