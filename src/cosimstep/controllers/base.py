@@ -426,12 +426,23 @@ class StepPolicy:
         """Record an accepted step's outputs ``y`` at its end ``t`` (:meth:`norm_scale`)."""
         self._lows.observe(t, y, min(self._span, self.memory))
 
-    def ratio(self, error: np.ndarray, y: np.ndarray, h: float) -> tuple[float, int]:
+    def ratio(self, error: np.ndarray, y: np.ndarray, h: float,
+              lagging: np.ndarray | None = None) -> tuple[float, int]:
         """Largest error / allowed over the variables, and the index where it occurs.
 
         The allowed error is scaled by :meth:`norm_scale`, not by ``y`` now: the error is met
-        wherever the outputs go while it persists."""
+        wherever the outputs go while it persists. Outputs marked ``lagging`` (their error a
+        lag of the step, :mod:`~cosimstep.controllers.lag`) are met against the whole budget,
+        not a share of it: their error does not add up."""
+        r = self.ratios(error, y, h, lagging)
+        i = int(np.argmax(r)) if r.size else 0
+        return (float(r[i]) * self.propagation if r.size else 0.0), i
+
+    def ratios(self, error: np.ndarray, y: np.ndarray, h: float,
+               lagging: np.ndarray | None = None) -> np.ndarray:
+        """Each variable's error / allowed (:meth:`ratio`, without :attr:`propagation`)."""
         allowed = self.norm_scale(y)
+        whole = allowed * self.cancellation if lagging is not None else None
         if self.global_error:
             # an error is carried for the rest of the run, or for the measured error memory
             window = min(self._span, self.memory)
@@ -441,12 +452,11 @@ class StepPolicy:
                     / (h * self._steps(h))
             else:
                 allowed = allowed * (self.cancellation * min(h, window) / window)
+            if whole is not None:
+                allowed = np.where(lagging, whole, allowed)
         if self.floor > 0.0:  # the sub-models' noise is no step's error
-            r = np.maximum(np.abs(error) - self.floor * self.scale(y), 0.0) / allowed
-        else:
-            r = np.abs(error) / allowed
-        i = int(np.argmax(r)) if r.size else 0
-        return (float(r[i]) * self.propagation if r.size else 0.0), i
+            return np.maximum(np.abs(error) - self.floor * self.scale(y), 0.0) / allowed
+        return np.abs(error) / allowed
 
     def _steps(self, h: float) -> float:
         """How many steps share the budget (``distribute``): those whose errors add up with

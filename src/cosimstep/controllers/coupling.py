@@ -35,6 +35,7 @@ import numpy as np
 
 from cosimstep.controllers.base import Attempt, Controller, StepContext, StepPolicy
 from cosimstep.controllers.drift import DriftEstimate
+from cosimstep.controllers.lag import LaggingOutputs
 from cosimstep.controllers.memory import ErrorMemory
 from cosimstep.extrapolation import evaluate_at, weight_matrix
 
@@ -101,12 +102,14 @@ class _PolicyController(Controller):
         # history did not foretell (Doubling)
         self.unforeseen = 0
         self._drift = DriftEstimate()
+        self._lagging = LaggingOutputs()  # outputs whose error is a lag of the step
         # the error memory probe (controllers/memory.py): off unless a controller measures it
         self.probe = ErrorMemory(every=0)
 
     def initial_step(self, t0: float, t_end: float) -> float:
         self.policy.start(t0, t_end)
         self._drift.reset()
+        self._lagging.reset()
         self.probe.reset(t0, t_end)
         self.error_estimate = 0.0
         self.unforeseen = 0
@@ -150,7 +153,7 @@ class _PolicyController(Controller):
         the run's ``tol``, ``pc`` may tighten the step control by it (:attr:`StepPolicy.overrun`).
         """
         self._drift.add(error, values, t, h, self.policy.scale(values), self.policy.tol,
-                        math.exp(-h / self.policy.memory), jumping)
+                        math.exp(-h / self.policy.memory), jumping, self._lagging.mask)
         self.error_estimate = self._drift.value
         policy = self.policy
         if self.trusted_estimate and policy.overrun and policy.global_error \
@@ -173,19 +176,40 @@ class _PolicyController(Controller):
         return self._drift.summed
 
     def _decide(self, ctx: StepContext, token: Any, t: float, h: float, y: np.ndarray,
-                error: np.ndarray, values: np.ndarray, k: float, names: list[str]) -> Attempt:
-        """Accept or reject (restoring the models to ``t``) and propose the next step."""
-        ratio, i = self.policy.ratio(error, values, h)
-        if ratio > 1.0 and self.policy.noise(t, h, error, values):
-            ratio, i = self.policy.ratio(error, values, h)  # above the floor just found
+                error: np.ndarray, values: np.ndarray, k: float, names: list[str],
+                lags: bool = False) -> Attempt:
+        """Accept or reject (restoring the models to ``t``) and propose the next step.
+
+        ``k``: the power of ``h`` the ratio of an error that adds up scales with; the ratio of
+        an output recognised as lagging (:mod:`~cosimstep.controllers.lag`), met against the
+        whole budget, scales with ``h`` itself. ``lags``: the estimate can see an output's lag
+        of the step (step doubling's can; a predictor and a corrector that start from the
+        same inputs cannot), so lagging outputs are looked for."""
+        policy, lagging = self.policy, self._lagging.mask
+        ratio, i = policy.ratio(error, values, h, lagging)
+        if lags and policy.global_error:  # without a share a lag is met like any error
+            judged = self._lagging.judge(t, h, np.abs(error) / policy.scale(values),
+                                         policy.ratios(error, values, h, lagging),
+                                         ratio > 1.0, ratio > policy.target)
+            if isinstance(judged, float):  # re-run shorter from the same state: a lag?
+                ctx.restore(token)
+                return Attempt(y, False, judged, ratio)
+            if judged is not None:
+                lagging = judged
+                ratio, i = policy.ratio(error, values, h, lagging)
+        if ratio > 1.0 and policy.noise(t, h, error, values):
+            ratio, i = policy.ratio(error, values, h, lagging)  # above the floor just found
         accepted = ratio <= 1.0
         if accepted:
-            self.policy.accepted_step()
-            self.policy.observe(t + h, values)
+            policy.accepted_step()
+            policy.observe(t + h, values)
             self._account(error, values, t, h,
                           ctx.discrete if ctx.discrete.any() else None)
-        k = (k if self.policy.global_error else k + 1) + self.policy.extra_power
-        h_next = self.policy.next_step(h, ratio, k, accepted)
+        if lagging is not None and lagging[i]:
+            k = 1.0
+        else:
+            k = (k if policy.global_error else k + 1) + policy.extra_power
+        h_next = policy.next_step(h, ratio, k, accepted)
         if not accepted:
             ctx.restore(token)
             what = f"{names[i]}: error {abs(error[i]):.3g} is {ratio:.3g}× the allowed" \
@@ -478,6 +502,9 @@ class Doubling(_PolicyController):
         extra = ((t + 0.5 * h, y_half),)
         y = ctx.step(t + 0.5 * h, 0.5 * h, extra=extra)
         error = (y_full - y) / (2.0 ** (q + 1) - 1.0)
+        lagging = self._lagging.mask
+        if lagging is not None:  # a lag of h against one of h/2: the difference is the half's
+            error = np.where(lagging, y_full - y, error)
         missed, _ = ctx.defect()
         # an iterated step (strong coupling) ends on its own end values: what is left of its
         # inputs' miss is the iteration's tolerance, nothing a history failed to foretell
@@ -490,7 +517,7 @@ class Doubling(_PolicyController):
             bound = (q + 2) * (y_c - y)
             error = np.where(np.abs(bound) > np.abs(error), bound, error)
             y = y_c
-        return self._decide(ctx, token, t, h, y, error, y, q + 1, ctx.names)
+        return self._decide(ctx, token, t, h, y, error, y, q + 1, ctx.names, lags=True)
 
 
 def _shrink(times: list[float], t: float, h: float, q: int) -> float:

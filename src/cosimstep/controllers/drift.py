@@ -70,21 +70,28 @@ class DriftEstimate:
 
     def add(self, error: np.ndarray, values: np.ndarray, t: float, h: float,
             scale: np.ndarray, tol: float, fade: float,
-            jumping: np.ndarray | None = None) -> None:
+            jumping: np.ndarray | None = None, lagging: np.ndarray | None = None) -> None:
         """One accepted step from ``t`` to ``t + h``: its local ``error`` estimate and the
         outputs ``values`` at its end (absolute units), ``scale`` the norm's (``atol +
         rtol·|y|``), ``fade`` what the error memory lets the past keep (``exp(−h/M)``),
         ``jumping`` a mask of discrete outputs (``None``: there are none). The motion is read
         only from a step that starts where the last one ended: a step accepted and then
         undone (one that crossed a state event, redone up to the crossing) leaves the last
-        end point behind, and the change from there is no motion."""
+        end point behind, and the change from there is no motion. ``lagging``: outputs whose
+        error is a lag of the step (:mod:`~cosimstep.controllers.lag`): not summed and no time
+        shift, but a level the estimate holds while the step lasts."""
+        level = None
+        if lagging is not None:
+            level = np.where(lagging, np.abs(error), 0.0)
+            error = np.where(lagging, 0.0, error)
         magnitude = np.abs(error)
         if self._plain is None:
             self._plain = magnitude
         else:  # (a fade of 1, no memory measured, keeps everything: no product to form)
             self._plain = (self._plain if fade == 1.0 else fade * self._plain) + magnitude
         norm = scale / tol
-        self.summed = max(self.summed, float((self._plain / norm).max()))
+        plain = self._plain if level is None else self._plain + level
+        self.summed = max(self.summed, float((plain / norm).max()))
         velocity = None
         if not abs(t - self._end) <= 1e-9 * h:  # not where the last step ended
             self._last = self._velocity = None
@@ -108,6 +115,8 @@ class DriftEstimate:
         self._shift = fade * self._shift + tau
         now = self._across if velocity is None else \
             self._across + abs(self._shift) * np.abs(velocity)
+        if level is not None:
+            now = now + level
         self.value = max(self.value, float((now / norm).max()))
 
     def _time_shift(self, error: np.ndarray, velocity: np.ndarray | None, h: float,
