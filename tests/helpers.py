@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from typing import Any
 
@@ -91,6 +92,8 @@ class Clock(SubModel):
                 raise RuntimeError("solver diverged")
             if self.mode == "hang":
                 time.sleep(30)
+            if self.mode == "exit":
+                sys.exit(3)
         self.t = t + h
 
     def get_outputs(self) -> np.ndarray:

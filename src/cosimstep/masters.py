@@ -662,7 +662,7 @@ class Master:
                 if q > 0:
                     watch.call(k, t, h, model.set_input_derivatives, (a * coef[1:q + 1, src],))
                 watch.call(k, t, h, model.do_step, (t, h))
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:
             self._reraise(k, t, exc, h)
         self.time_in_models[k] += time.perf_counter() - start
 
@@ -775,10 +775,10 @@ class Master:
             if self._watch is not None:
                 return self._watch.call(k, t, h, fn, args)
             return fn(*args)
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:  # a sub-model's sys.exit() ends only its run
             self._reraise(k, t, exc, h)
 
-    def _reraise(self, k: int, t: float, exc: Exception, h: float | None) -> NoReturn:
+    def _reraise(self, k: int, t: float, exc: BaseException, h: float | None) -> NoReturn:
         """Raise what model ``k``'s call at ``t`` raised as the run reports it: named after
         the model, with the time and step."""
         if isinstance(exc, SubModelError):
@@ -895,7 +895,7 @@ class _LeanKernel:
             if watch.abandoned:
                 raise _Abandoned
 
-    def _fail(self, k: int, t: float, h: float, exc: Exception) -> None:
+    def _fail(self, k: int, t: float, h: float, exc: BaseException) -> None:
         if self.master._watch is not None:
             self.master._watch.running = 0
         if isinstance(exc, SubModelError):
@@ -1071,7 +1071,7 @@ class _HeldKernel(_LeanKernel):
                         model.set_inputs(u)
                         model.do_step(t, h)
                         y = model.get_outputs()
-                    except Exception as exc:
+                    except (Exception, SystemExit) as exc:
                         self._fail(k, t, h, exc)
                     if timed:
                         spent[k] += clock() - start
@@ -1332,7 +1332,7 @@ class _ExtrapolatingKernel(_LeanKernel):
                 model.set_input_derivatives(deriv[3].copy())
             model.do_step(t, h)
             y = model.get_outputs()
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:
             self._fail(k, t, h, exc)
         spent[k] += clock() - start
         if watch is not None:

@@ -77,3 +77,11 @@ def test_make_controller_defaults_and_errors() -> None:
         make_controller("rk99", None, 1e-4)
     with pytest.raises(ValueError, match="`mode` must be one of"):
         make_controller("rkf23", None, 1e-4, mode="everything")
+
+
+@pytest.mark.parametrize("step", [-0.01, 0.0, float("nan"), float("inf")])
+def test_an_initial_step_must_be_positive_wherever_it_is_given(step):
+    """`[controller] step` refused a negative initial step while `--step` and the API ran it,
+    clamped to hmin: every route now refuses it, naming it."""
+    with pytest.raises(ValueError, match=r"`step` \(the initial step\) must be a positive"):
+        make_controller("pc", step, 1e-4)

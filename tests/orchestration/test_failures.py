@@ -29,11 +29,15 @@ def _system(mode: str) -> System:
     return s
 
 
-@pytest.mark.parametrize("mode, words", [("raise", "RuntimeError: solver diverged"),
-                                         ("nan", "non-finite output(s) clock.time")])
-def test_failure_keeps_every_step_before_it(tmp_path, mode, words):
+@pytest.mark.parametrize("mode, words, timeout", [
+    ("raise", "RuntimeError: solver diverged", None),
+    ("nan", "non-finite output(s) clock.time", None),
+    ("exit", "SystemExit: 3", None),  # a sub-model's sys.exit() ended the caller, results lost
+    ("exit", "SystemExit: 3", 0)])  # unwatched, in the lean fixed-step loop
+def test_failure_keeps_every_step_before_it(tmp_path, mode, words, timeout):
     db = tmp_path / "run.db"
-    r = simulate(_system(mode), 1.0, Fixed(0.1), store=db)
+    options = MasterOptions() if timeout is None else MasterOptions(call_timeout=timeout)
+    r = simulate(_system(mode), 1.0, Fixed(0.1), options, store=db)
     assert r.status == "failed"
     assert "'clock'" in r.message and "t = 0.5" in r.message and words in r.message
     assert r.t_end == pytest.approx(0.5)

@@ -7,6 +7,7 @@ Selectable by name (:data:`CONTROLLERS`, :func:`make_controller`) from the API, 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -16,6 +17,7 @@ from cosimstep.controllers.coupling import Corrector, Defect, Doubling, Embedded
 from cosimstep.controllers.curvature import Curvature
 from cosimstep.controllers.helpers import AdaptiveTolerance, Switching, fft_hmax, fixed_step_from
 from cosimstep.controllers.rkf import RKF23, RKF45
+from cosimstep.errors import is_number
 
 CONTROLLERS: dict[str, Callable[..., Controller]] = {
     c.name: c for c in (Fixed, Random, Curvature, RKF23, RKF45, Defect, PredictorCorrector,
@@ -47,6 +49,10 @@ def make_controller(name: str | None, step: float | None = None, tol: float | No
         if step is None:
             raise ValueError("controller 'fixed' needs a step (--step H or [controller] step)")
         return Fixed(step, **options)
+    if step is not None and not (is_number(step) and 0 < step < math.inf):
+        # the initial step: a negative one ran (clamped to hmin) where the file refused it
+        raise ValueError(f"`step` (the initial step) must be a positive finite number, got "
+                         f"{step!r}")
     if name == "random":
         return Random(**options)
     kwargs = dict(options)
