@@ -196,6 +196,18 @@ def _event_model(sec: ModelSection, where: str, problems: list[Problem]) -> SubM
 
 def _python_model(sec: ModelSection, base_dir: Path, where: str,
                   problems: list[Problem]) -> SubModel | None:
+    # keys a Python class never reads: silently ignored, a start value looked as if it set
+    # the state (the run started from the class's own)
+    for key, given, fix in (
+            ("path", sec.path, "remove it, or write type = 'fmu'"),
+            ("recipe", sec.recipe, "remove it, or write type = 'fmu'"),
+            ("export", sec.export, "remove it, or write type = 'fmu'"),
+            ("interface", sec.interface, "remove it, or write type = 'fmu'"),
+            ("solver", sec.solver, "give the class its solver settings in [parameters]"),
+            ("start", sec.start or None, "give the class its start values in [parameters]")):
+        if given is not None:
+            problems.append(Problem(f"{where}.{key}", "not used by type 'python': the class "
+                                    "is built from [parameters] alone", fix))
     target = sec.class_
     if not target or ":" not in target:
         problems.append(Problem(f"{where}.class", "type 'python' needs class = 'module:Class'",

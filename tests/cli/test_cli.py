@@ -268,6 +268,22 @@ def test_rollback_without_state_saving_is_a_configuration_error(tmp_path):
         assert "--controller fixed" in res.output
 
 
+def test_keys_a_python_class_never_reads_are_refused(tmp_path):
+    """`start`, `solver`, `path` on a type = "python" model were ignored without a word (the
+    run started from the class's own state): each is named now, together, exit 2."""
+    _helper_models(tmp_path)
+    (tmp_path / "s.toml").write_text(
+        'until = 1.0\n[models.clock]\ntype = "python"\nclass = "models.py:Clock"\n'
+        'start = { time = 5.0 }\nsolver = { method = "RK45" }\npath = "x.fmu"\n'
+        '[models.sink]\ntype = "python"\nclass = "models.py:Integrator"\n'
+        'parameters = { unit = "s" }\n[[connections]]\nfrom = "clock.time"\nto = "sink.u"\n'
+        '[controller]\nstep = 0.1\n')
+    res = CliRunner().invoke(main, ["validate", str(tmp_path / "s.toml")])
+    assert res.exit_code == 2, res.output
+    for key in ("models.clock.start", "models.clock.solver", "models.clock.path"):
+        assert f"{key}: not used by type 'python'" in res.output
+
+
 def test_multirate_with_direct_feedthrough_is_a_configuration_error(tmp_path):
     # a sub-model whose output depends on its input at the same instant has no trajectory of
     # its own: refused with exit 2 and every reason, not a traceback from the master
