@@ -145,7 +145,7 @@ def _scaled_error(result: cs.SimulationResult) -> float:
     return float(np.max(np.abs(result.values - exact) / (1.0 + np.abs(exact))))
 
 
-@pytest.mark.parametrize(("tol", "calls"), [(1e-3, 464), (1e-4, 1646)])
+@pytest.mark.parametrize(("tol", "calls"), [(1e-3, 464), (1e-4, 1802)])
 def test_a_lagging_gain_keeps_the_tolerance(tol: float, calls: int) -> None:
     """Before, `pc` (step doubling: the oscillator holds its input) ended failed at t = 0.147
     (tol 1e-3) and 0.016 s (1e-4), the step at 1e-14 s. Now: 0.58 and 0.62 x tol."""
@@ -172,7 +172,7 @@ def test_the_estimate_holds_a_lag_as_a_level() -> None:
 def test_a_pi_controller_with_its_proportional_part_lagging() -> None:
     """The plant's first step: every attempt from t = 0 rejected with the same ratio down to a
     noise floor, then a crawl at 6e-9 s (600,000 calls for 0.001 s of the 5 s). Now the lag is
-    read from the rejections, twice, and the run keeps the tolerance: 0.47 x tol, 2,724 calls.
+    read from the rejections, twice, and the run keeps the tolerance: 0.47 x tol, 2,866 calls.
     Exact solution: x' = -x + KP (1 - x) + KI z, z' = 1 - x, from rest."""
     from scipy.integrate import solve_ivp
 
@@ -187,7 +187,7 @@ def test_a_pi_controller_with_its_proportional_part_lagging() -> None:
     error = float(np.max(np.abs(result.values - reference) / (1 + np.abs(reference))))
     assert 0.1 <= error / 1e-3 <= 10  # 0.47 measured
     assert 0.2 <= result.error_estimate / error <= 5  # 1.07 measured
-    assert result.calls_total <= 1.2 * 2724
+    assert result.calls_total <= 1.2 * 2866
 
 
 def test_rejections_from_one_time_read_the_order_exactly() -> None:
@@ -198,11 +198,11 @@ def test_rejections_from_one_time_read_the_order_exactly() -> None:
     finder = LaggingOutputs()
     ratios = np.array([0.1, 3.0])
     for h in (1.0, 0.2, 0.04):
-        judged = finder.judge(0.0, h, np.array([1e-3 * h ** 3, 1e-2 * h]), ratios, True, True)
+        judged = finder.judge(0.0, h, np.array([1e-3 * h ** 3, 1e-2 * h]), ratios, 2.0, 0.1)
     assert judged is not None and judged.tolist() == [False, True]
     assert finder.mask is None  # once is no proof
     for h in (1.0, 0.2, 0.04):
-        judged = finder.judge(0.5, h, np.array([1e-3 * h ** 3, 1e-2 * h]), ratios, True, True)
+        judged = finder.judge(0.5, h, np.array([1e-3 * h ** 3, 1e-2 * h]), ratios, 2.0, 0.1)
     assert finder.mask is not None and finder.mask.tolist() == [False, True]
 
 
@@ -214,7 +214,7 @@ def test_an_error_that_adds_up_is_never_read_as_a_lag() -> None:
     for t in (0.0, 0.5):
         for h in (1.0, 0.2, 0.04):
             judged = finder.judge(t, h, np.array([1e-3 * h ** 3, 1e-2 * h * h]), ratios,
-                                  True, True)
+                                  2.0, 0.1)
             assert judged is None
     assert finder.mask is None
 
@@ -227,10 +227,34 @@ def test_a_descent_of_accepted_steps_is_checked_by_a_shorter_rerun() -> None:
     ratios = np.array([0.1, 0.3])
     h, t, probe = 1.0, 0.0, None
     while probe is None:
-        probe = finder.judge(t, h, np.array([0.0, 1e-2 * h]), ratios, False, True)
+        probe = finder.judge(t, h, np.array([0.0, 1e-2 * h]), ratios, 0.3, 0.1)
         t, h = t + h, 0.8 * h
     t, h = t - h / 0.8, h / 0.8  # the attempt that raised it
     assert probe == pytest.approx(h / 4)
     # the re-run shows an error that falls like h^2: no lag
-    assert finder.judge(t, probe, np.array([0.0, 1e-2 * h / 16]), ratios, False, True) is None
+    assert finder.judge(t, probe, np.array([0.0, 1e-2 * h / 16]), ratios, 0.3, 0.1) is None
     assert finder.mask is None
+
+
+def test_a_stiff_partition_holding_its_input_lags_it_at_long_steps() -> None:
+    """The suite's boundary layer with both sub-models holding their inputs, tol 1e-2: at
+    steps long against its time constant the fast partition is slaved to its held input and
+    lags it like a gain; its ratio sat at the aim and the step crept (57,252 calls, 0.066 x
+    tol). A re-run at a quarter of an accepted step reads the order (now and then: the first
+    after 50 steps, then ever more rarely) and finds the lag: 0.51 x tol in 1,122 calls."""
+    import dataclasses
+
+    from cosimstep import suite
+
+    problem = suite.get("boundary_layer")
+    system, reference = problem.build()
+    for model in system.models.values():
+        model.capabilities = dataclasses.replace(model.capabilities,
+                                                 max_input_derivative_order=0)
+    result = cs.simulate(system, problem.until, cs.make_controller("pc", tol=1e-2),
+                         cs.MasterOptions("gauss-seidel", 2), reference=reference,
+                         max_wall=60)
+    assert result.success, result.message
+    assert 0.1 <= result.error.max_scaled / 1e-2 <= 10
+    assert 0.2 <= result.error_estimate / result.error.max_scaled <= 5
+    assert result.calls_spent <= 1.2 * 1122

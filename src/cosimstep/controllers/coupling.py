@@ -189,8 +189,8 @@ class _PolicyController(Controller):
         ratio, i = policy.ratio(error, values, h, lagging)
         if lags and policy.global_error:  # without a share a lag is met like any error
             judged = self._lagging.judge(t, h, np.abs(error) / policy.scale(values),
-                                         policy.ratios(error, values, h, lagging),
-                                         ratio > 1.0, ratio > policy.target)
+                                         policy.ratios(error, values, h, lagging), ratio,
+                                         policy.target)
             if isinstance(judged, float):  # re-run shorter from the same state: a lag?
                 ctx.restore(token)
                 return Attempt(y, False, judged, ratio)
