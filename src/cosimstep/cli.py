@@ -202,20 +202,31 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
                                 no_store, output_interval)
     if out is not None and not no_store and resume_db is None:
         bad += output_problems("--out", out, store=True)
-    if bad:
-        _config_exit(ConfigurationError(bad, "the command line"))
-    overrides = {"parameters": _values(params, "--param"), "start": _values(starts, "--start")}
+    overrides = {"parameters": _values(params, "--param", bad),
+                 "start": _values(starts, "--start", bad)}
+    chosen = _options(options, bad)
+    # every problem at once: the command line's, the file's, and those of the master and the
+    # controller the two make together (as far as the file could be read)
+    choices = Choices(master, extrapolation, interpolation, resync, call_timeout,
+                      {"coupling": coupling, "coupling_tol": coupling_tol,
+                       "max_iterations": max_iterations, "coupling_input": coupling_input},
+                      controller, step, tol, seed, chosen)
     set_fmu_logging(fmu_logging)
     try:
         spec = load_system(system, until, overrides, inputs=inputs_csv)
     except ConfigurationError as exc:
-        _config_exit(exc)
+        if exc.defaults is not None:
+            bad += choices.problems(*exc.defaults, None)
+        _config_exit(ConfigurationError([*bad, *exc.problems], exc.source))
+    bad += choices.problems(spec.master, spec.controller, spec.system)
+    if bad:
+        _config_exit(ConfigurationError(bad, spec.source))
     checkpoints = {"checkpoint_every": checkpoint_every or None,
                    "checkpoint_steps": checkpoint_steps}
     if resume_db is not None:
         checkpoints["resume"] = _resumable(resume_db, run_id)
     result = _run(spec, master, extrapolation, controller, step, tol, seed,
-                  resume_db or out, _options(options), interpolation, estimate,
+                  resume_db or out, chosen, interpolation, estimate,
                   store=not no_store,
                   budget={"max_wall": max_wall, "max_calls": max_calls, **checkpoints,
                           "tighten": not no_tighten},
@@ -307,11 +318,11 @@ def _resumable(db: str, run_id: int | None) -> int:
     raise AssertionError  # unreachable: _config_exit exits
 
 
-def _values(pairs: tuple[str, ...], flag: str) -> dict[str, Any]:
-    """``NAME=VALUE`` pairs (exit 2 listing every malformed one). A value is a number; one
+def _values(pairs: tuple[str, ...], flag: str, bad: list[Problem]) -> dict[str, Any]:
+    """``NAME=VALUE`` pairs (every malformed one added to ``bad``). A value is a number; one
     sub-model's (``MODEL.NAME``) may also be any TOML value, as in its table of the file —
     text in quotes (``--param 'room.mode="eco"'``), ``true``/``false``, an array."""
-    out, bad = {}, []
+    out = {}
     for pair in pairs:
         key, sep, text = pair.partition("=")
         key = key.strip()
@@ -328,8 +339,6 @@ def _values(pairs: tuple[str, ...], flag: str) -> dict[str, Any]:
                                "sub-model's)"))
             continue
         out[key] = float(value) if number else value
-    if bad:
-        _config_exit(ConfigurationError(bad, "the command line"))
     return out
 
 
@@ -343,9 +352,9 @@ def _toml_value(text: str) -> Any:
         return None
 
 
-def _options(pairs: tuple[str, ...]) -> dict[str, Any]:
+def _options(pairs: tuple[str, ...], bad: list[Problem]) -> dict[str, Any]:
+    """``--opt KEY=VALUE`` pairs (every malformed one added to ``bad``)."""
     out: dict[str, Any] = {}
-    bad = []
     for pair in pairs:
         key, sep, text = pair.partition("=")
         if not sep or not key.strip():
@@ -356,8 +365,6 @@ def _options(pairs: tuple[str, ...]) -> dict[str, Any]:
         except json.JSONDecodeError:
             value = text  # a bare word such as mode=reference
         out[key.strip()] = value
-    if bad:
-        _config_exit(ConfigurationError(bad, "the command line"))
     return out
 
 
@@ -407,22 +414,79 @@ def _run(spec: SystemSpec, master: str | None, extrapolation: int | None,
 
 def _controller(name: str | None, settings: dict[str, Any], source: str) -> Any:
     """The controller, or exit 2 saying what is wrong (an unknown option: the valid ones)."""
+    ctrl, problems = _built_controller(name, settings)
+    if problems:
+        _config_exit(ConfigurationError(problems, source))
+    return ctrl
+
+
+def _built_controller(name: str | None, settings: dict[str, Any]) -> tuple[Any, list[Problem]]:
+    """The controller, or ``None`` and what is wrong: every unknown option (with the valid
+    ones), then what the controller refuses of the rest."""
     settings = dict(settings)
+    problems = []
+    effective = name if name is not None else \
+        DEFAULT_ADAPTIVE if settings.get("tol") is not None else "fixed"
+    # (a controller that wraps another hands it options its own list does not name)
+    if effective in CONTROLLERS and effective not in WRAPPERS:
+        options = controller_options(effective)
+        for key in [k for k in settings if k not in {*options, "step", "tol"}]:
+            settings.pop(key)
+            problems.append(Problem("controller", f"unknown option '{key}'",
+                                    f"its options: {', '.join(options)}"))
     try:
-        return make_controller(name, settings.pop("step", None), settings.pop("tol", None),
+        ctrl = make_controller(name, settings.pop("step", None), settings.pop("tol", None),
                                **settings)
+        return (ctrl, []) if not problems else (None, problems)
     except TypeError as exc:
         fix = f"its options: {', '.join(controller_options(name))}" \
             if name in CONTROLLERS or name is None else "see `cosimstep run --help`"
-        _config_exit(ConfigurationError([Problem("controller", plain_error(exc), fix)],
-                                        source))
+        return None, [*problems, Problem("controller", plain_error(exc), fix)]
     except ValueError as exc:
         fix = ("correct it where it is set: --tol, --step, --opt KEY=VALUE, or the file's "
                "[controller] table") + (f"; options of '{name}': "
                                         f"{', '.join(controller_options(name))}"
                                         if name in CONTROLLERS else "")
-        _config_exit(ConfigurationError([Problem("controller", str(exc), fix)], source))
-    raise AssertionError  # unreachable: _config_exit exits
+        return None, [*problems, Problem("controller", str(exc), fix)]
+
+
+WRAPPERS = frozenset({"switching", "adaptive-tol"})
+"""Controllers that pass options on to a controller inside them (:func:`_built_controller`)."""
+
+
+@dataclasses.dataclass
+class Choices:
+    """What ``run``'s command line chooses for the master and the controller, checked on top of
+    a file's ``[master]`` and ``[controller]`` before anything runs (:meth:`problems`)."""
+
+    master: str | None
+    extrapolation: int | None
+    interpolation: str | None
+    resync: str | None
+    call_timeout: float | None
+    coupling: dict[str, Any]
+    controller: str | None
+    step: float | None
+    tol: float | None
+    seed: int | None
+    options: dict[str, Any]
+
+    def problems(self, master: MasterOptions | None, controller: dict[str, Any] | None,
+                 system: Any) -> list[Problem]:
+        """What is wrong with these choices on top of the file's ``master`` and
+        ``controller`` (either ``None``: the file's table has problems of its own, listed
+        already, so it is not checked again); ``system`` (``None`` if it could not be built)
+        refines the check of an explicit coupling's options."""
+        problems = []
+        if master is not None:
+            problems += _master_choice(master, system, self.master, self.extrapolation,
+                                       self.interpolation, self.resync, self.call_timeout,
+                                       self.coupling)[1]
+        if controller is not None:
+            settings = merged_settings(controller, self.controller, self.step, self.tol,
+                                       self.seed, self.options)
+            problems += _built_controller(settings.pop("name", None), settings)[1]
+        return problems
 
 
 def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | None,
@@ -433,14 +497,26 @@ def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | N
     ``call_timeout`` 0 lifts the limit; ``coupling``: ``coupling``, ``coupling_tol``,
     ``max_iterations`` and ``coupling_input`` given on the command line (``None``: the
     file's)."""
-    opts = spec.master
+    opts, problems = _master_choice(spec.master, spec.system, master, extrapolation,
+                                    interpolation, resync, call_timeout, coupling)
+    if problems:
+        _config_exit(ConfigurationError(problems, spec.source))
+    return opts
+
+
+def _master_choice(opts: MasterOptions, system: Any, master: str | None,
+                   extrapolation: int | None, interpolation: str | None, resync: str | None,
+                   call_timeout: float | None, coupling: dict[str, Any] | None
+                   ) -> tuple[MasterOptions, list[Problem]]:
+    """:func:`_master_options` on the file's ``opts``, returning what is wrong instead of
+    exiting (``system``: ``None`` if it could not be built)."""
     timeout = opts.call_timeout if call_timeout is None else call_timeout
     opts = MasterOptions(master or opts.name,
                          opts.extrapolation if extrapolation is None else extrapolation,
                          opts.order, timeout, interpolation or opts.interpolation,
                          resync or opts.resync)
-    strong = {k: getattr(spec.master, k) for k in ("coupling", "coupling_tol", "max_iterations",
-                                                   "coupling_input")}
+    strong = {k: getattr(opts, k) for k in ("coupling", "coupling_tol", "max_iterations",
+                                            "coupling_input")}
     strong.update({k: v for k, v in (coupling or {}).items() if v is not None})
     opts = dataclasses.replace(opts, **strong)
     problems = [Problem("master", p, "see `cosimstep run --help`") for p in opts.problems()]
@@ -448,14 +524,12 @@ def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | N
         given = [(flag, key) for flag, key in (("--coupling-tol", "coupling_tol"),
                                                ("--max-iterations", "max_iterations"))
                  if (coupling or {}).get(key) is not None]
-        if given and given[0][1] == "coupling_tol" and spec.system.loops():
+        if given and given[0][1] == "coupling_tol" and (system is None or system.loops()):
             given = given[1:]  # algebraic loops are solved to coupling_tol
         problems += [Problem(flag, "sets the iteration of strong coupling; this run's coupling "
                              "is explicit", "add --coupling fixed-point|aitken|iqn-ils, or "
                              "leave it out") for flag, _ in given]
-    if problems:
-        _config_exit(ConfigurationError(problems, spec.source))
-    return opts
+    return opts, problems
 
 
 def _controller_settings(spec: SystemSpec, controller: str | None, step: float | None,

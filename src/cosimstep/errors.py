@@ -39,6 +39,10 @@ class ConfigurationError(ValueError):
     def __init__(self, problems: list[Problem], source: str | None = None) -> None:
         self.problems = list(problems)
         self.source = source
+        # a system file's [master] and [controller] as read (MasterOptions and dict, each
+        # None where the file's table has problems of its own), where the file could be read
+        # that far (cosimstep.spec.finish)
+        self.defaults: tuple[Any, dict[str, Any] | None] | None = None
         head = f"{len(self.problems)} problem(s) in {source or 'the system'}:"
         super().__init__("\n".join([head, *(f"  - {p}" for p in self.problems)]))
 

@@ -370,11 +370,14 @@ def finish(settings: Mapping[str, Any], header: HeaderSection, system: System, o
     """
     changes = changes if changes is not None else []
     loc = origin.loc
+    before = len(problems)
     master = _master(settings.get("master", {}), system, loc("master"), problems)
+    master_ok, before = len(problems) == before, len(problems)
     controller = parse(ControllerSection, settings.get("controller", {}), loc("controller"),
                        problems)
     if controller is not None:
         _check_controller(controller, loc("controller"), problems)
+    controller_ok = controller is not None and len(problems) == before
     ref = None
     if "reference" in settings:
         sec = parse(ReferenceSection, settings["reference"], loc("reference"), problems)
@@ -386,7 +389,12 @@ def finish(settings: Mapping[str, Any], header: HeaderSection, system: System, o
     if used is not None:
         _unused(header, changes, used, loc, problems, settings.get("parameter_changes"))
     if problems:
-        raise ConfigurationError(problems, origin.source)
+        error = ConfigurationError(problems, origin.source)
+        # the run defaults as read, so that a command line can check its own choices on top of
+        # them and report its problems with these (cosimstep.cli), not after they are fixed
+        error.defaults = (master if master_ok else None,
+                          controller.model_dump(exclude_none=True) if controller_ok else None)
+        raise error
     until = origin.until if origin.until is not None else (
         origin.default_until if origin.default_until is not None else header.until)
     return SystemSpec(

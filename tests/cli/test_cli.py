@@ -657,3 +657,33 @@ def test_rkf23_model_slopes_fall_back_to_the_fitted_cubic(examples):
                                     "--tol", "1e-3", "--opt", "slopes=model", "--no-store",
                                     "-q"])
     assert res.exit_code == 0 and "ok — completed" in res.output, res.output
+
+
+def test_run_lists_the_command_lines_problems_with_the_files(examples):
+    """A bad flag, a malformed --param, an unknown --opt, a negative --step and names no model
+    reads were reported in three rounds (fix one, the next appeared): one list now, exit 2."""
+    res = CliRunner().invoke(main, [
+        "run", str(examples / "double_pendulum_slow.toml"), "--no-store", "--max-wall", "-1",
+        "--step", "-0.01", "--tol", "1e-4", "--opt", "bogus=1", "--param", "zz=1",
+        "--start", "qq=2", "--param", "broken"])
+    assert res.exit_code == 2, res.output
+    assert "6 problem(s)" in res.output
+    for part in ("--max-wall", "--param broken", "unknown option 'bogus'",
+                 "`step` (the initial step)", "--param zz", "--start qq"):
+        assert part in res.output, part
+
+
+def test_a_files_own_controller_problems_are_not_listed_twice(tmp_path):
+    """With the file unreadable elsewhere, the command line's controller choices are checked on
+    top of its [controller] table, but only where that table is sound: its own problems are
+    the file's, listed once."""
+    (tmp_path / "c.toml").write_text(
+        'until = 1.0\n[models.a]\ntype = "linear_coupled.slow"\nsolver = { method = "rk4", '
+        'substeps = 2.5 }\n[models.b]\ntype = "linear_coupled.fast"\n'
+        '[[connections]]\nfrom = "b.u"\nto = "a.u"\n[[connections]]\nfrom = "a.w"\nto = "b.w"\n'
+        '[controller]\ntol = 1e-4\nfoo = 1\n')
+    res = CliRunner().invoke(main, ["run", str(tmp_path / "c.toml"), "--no-store",
+                                    "--opt", "bar=2"])
+    assert res.exit_code == 2, res.output
+    assert res.output.count("foo") == 1
+    assert "substeps" in res.output
