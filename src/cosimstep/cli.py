@@ -207,7 +207,9 @@ def run(system: str, until: float | None, master: str | None, extrapolation: int
     chosen = _options(options, bad)
     # every problem at once: the command line's, the file's, and those of the master and the
     # controller the two make together (as far as the file could be read)
-    choices = Choices(master, extrapolation, interpolation, resync, call_timeout,
+    timeout_ok = not any(p.where == "--call-timeout" for p in bad)  # reported once
+    choices = Choices(master, extrapolation, interpolation, resync,
+                      call_timeout if timeout_ok else None,
                       {"coupling": coupling, "coupling_tol": coupling_tol,
                        "max_iterations": max_iterations, "coupling_input": coupling_input},
                       controller, step, tol, seed, chosen)
@@ -504,18 +506,18 @@ def _master_options(spec: SystemSpec, master: str | None, extrapolation: int | N
     return opts
 
 
-def _master_choice(opts: MasterOptions, system: Any, master: str | None,
+def _master_choice(file: MasterOptions, system: Any, master: str | None,
                    extrapolation: int | None, interpolation: str | None, resync: str | None,
                    call_timeout: float | None, coupling: dict[str, Any] | None
                    ) -> tuple[MasterOptions, list[Problem]]:
-    """:func:`_master_options` on the file's ``opts``, returning what is wrong instead of
-    exiting (``system``: ``None`` if it could not be built)."""
-    timeout = opts.call_timeout if call_timeout is None else call_timeout
-    opts = MasterOptions(master or opts.name,
-                         opts.extrapolation if extrapolation is None else extrapolation,
-                         opts.order, timeout, interpolation or opts.interpolation,
-                         resync or opts.resync)
-    strong = {k: getattr(opts, k) for k in ("coupling", "coupling_tol", "max_iterations",
+    """:func:`_master_options` on the file's options ``file``, returning what is wrong
+    instead of exiting (``system``: ``None`` if it could not be built)."""
+    timeout = file.call_timeout if call_timeout is None else call_timeout
+    opts = MasterOptions(master or file.name,
+                         file.extrapolation if extrapolation is None else extrapolation,
+                         file.order, timeout, interpolation or file.interpolation,
+                         resync or file.resync)
+    strong = {k: getattr(file, k) for k in ("coupling", "coupling_tol", "max_iterations",
                                             "coupling_input")}
     strong.update({k: v for k, v in (coupling or {}).items() if v is not None})
     opts = dataclasses.replace(opts, **strong)
