@@ -16,6 +16,7 @@ from cosimstep import (
     SubModel,
     SubModelError,
     System,
+    make_controller,
     read_run,
     simulate,
 )
@@ -29,15 +30,16 @@ def _system(mode: str) -> System:
     return s
 
 
-@pytest.mark.parametrize("mode, words, timeout", [
-    ("raise", "RuntimeError: solver diverged", None),
-    ("nan", "non-finite output(s) clock.time", None),
-    ("exit", "SystemExit: 3", None),  # a sub-model's sys.exit() ended the caller, results lost
-    ("exit", "SystemExit: 3", 0)])  # unwatched, in the lean fixed-step loop
-def test_failure_keeps_every_step_before_it(tmp_path, mode, words, timeout):
+@pytest.mark.parametrize("mode, words, options", [
+    ("raise", "RuntimeError: solver diverged", {}),
+    ("nan", "non-finite output(s) clock.time", {}),
+    ("exit", "SystemExit: 3", {}),  # a sub-model's sys.exit() ended the caller, results lost
+    ("exit", "SystemExit: 3", {"call_timeout": 0}),  # unwatched, the lean extrapolating loop
+    ("exit", "SystemExit: 3", {"extrapolation": 0}),  # the lean loop with inputs held
+    ("exit", "SystemExit: 3", {"extrapolation": 0, "call_timeout": 0})])
+def test_failure_keeps_every_step_before_it(tmp_path, mode, words, options):
     db = tmp_path / "run.db"
-    options = MasterOptions() if timeout is None else MasterOptions(call_timeout=timeout)
-    r = simulate(_system(mode), 1.0, Fixed(0.1), options, store=db)
+    r = simulate(_system(mode), 1.0, Fixed(0.1), MasterOptions(**options), store=db)
     assert r.status == "failed"
     assert "'clock'" in r.message and "t = 0.5" in r.message and words in r.message
     assert r.t_end == pytest.approx(0.5)
@@ -47,6 +49,27 @@ def test_failure_keeps_every_step_before_it(tmp_path, mode, words, timeout):
     assert np.array_equal(stored.times, r.times)
     assert np.array_equal(stored.values, r.values)
     assert stored.summary["calls"] == {"clock": 6, "sink": 6 if mode == "nan" else 5}
+
+
+@pytest.mark.parametrize("timeout", [None, 0])
+def test_a_sub_models_exit_under_an_adaptive_controller_ends_its_run(timeout):
+    """sys.exit() in a trial step is a failing trial step like a raise: retried down to hmin,
+    then the run ends failed with the results so far (it had ended the caller)."""
+    class SavedClock(Clock):
+        capabilities = Capabilities(can_save_state=True)
+
+        def save_state(self) -> float:
+            return self.t
+
+        def restore_state(self, token: float) -> None:
+            self.t = token
+
+    system = System().add("clock", SavedClock(fail_at=0.5, mode="exit"))
+    system.add("sink", Integrator(unit="s")).connect("clock.time", "sink.u")
+    options = MasterOptions() if timeout is None else MasterOptions(call_timeout=timeout)
+    r = simulate(system, 1.0, make_controller("pc", tol=1e-3), options)
+    assert r.status == "failed" and "SystemExit: 3" in r.message and "'clock'" in r.message
+    assert r.t_end == pytest.approx(0.5, abs=1e-6) and r.steps_accepted > 0
 
 
 def test_failure_can_raise():

@@ -37,6 +37,7 @@ from cosimstep.controllers.base import Attempt, Controller, StepContext, StepPol
 from cosimstep.controllers.drift import DriftEstimate
 from cosimstep.controllers.lag import LaggingOutputs
 from cosimstep.controllers.memory import ErrorMemory
+from cosimstep.errors import is_number
 from cosimstep.extrapolation import evaluate_at, weight_matrix
 
 
@@ -96,6 +97,9 @@ class _PolicyController(Controller):
             raise ValueError(f"controller '{self.name}' measures no error memory, and `trend` "
                              "and `unbiased` act only where one shows the system settling; "
                              "use controller 'pc'")
+        if h0 is not None and not (is_number(h0) and 0 < h0 < math.inf):
+            raise ValueError(f"`h0` (the initial step) must be a positive finite number, got "
+                             f"{h0!r}")
         self.h0 = h0
         self.error_estimate: float | None = None  # the run's global error estimate (scaled)
         # step doubling: second halves run again because the partners did what their
@@ -132,6 +136,7 @@ class _PolicyController(Controller):
         makes up where the probes see the settling (:attr:`StepPolicy.catch_up`; on seeds 1,
         4 and 5 0.30 / 1.42 / 0.76 × tol)."""
         self.probe.forget()
+        self._lagging.event()
         self._drift.jump()
         self.policy.memory = self.probe.memory
         self.policy.restart()
@@ -177,26 +182,36 @@ class _PolicyController(Controller):
 
     def _decide(self, ctx: StepContext, token: Any, t: float, h: float, y: np.ndarray,
                 error: np.ndarray, values: np.ndarray, k: float, names: list[str],
-                lags: bool = False) -> Attempt:
+                lag_error: np.ndarray | None = None) -> Attempt:
         """Accept or reject (restoring the models to ``t``) and propose the next step.
 
         ``k``: the power of ``h`` the ratio of an error that adds up scales with; the ratio of
-        an output recognised as lagging (:mod:`~cosimstep.controllers.lag`), met against the
-        whole budget, scales with ``h`` itself. ``lags``: the estimate can see an output's lag
-        of the step (step doubling's can; a predictor and a corrector that start from the
-        same inputs cannot), so lagging outputs are looked for."""
-        policy, lagging = self.policy, self._lagging.mask
-        ratio, i = policy.ratio(error, values, h, lagging)
-        if lags and policy.global_error:  # without a share a lag is met like any error
-            judged = self._lagging.judge(t, h, np.abs(error) / policy.scale(values),
-                                         policy.ratios(error, values, h, lagging), ratio,
-                                         policy.target)
-            if isinstance(judged, float):  # re-run shorter from the same state: a lag?
+        an output taken as lagging (:mod:`~cosimstep.controllers.lag`), met against the whole
+        budget, scales with ``h`` itself. ``lag_error``: the error of each output were it a lag
+        (step doubling: the whole difference, Richardson's estimate for order 1), given where
+        the estimate can see a lag of the step (a predictor and a corrector that start from
+        the same inputs cannot), so lagging outputs are looked for."""
+        policy, finder = self.policy, self._lagging
+        lagging = finder.marked
+
+        def judged(marked: np.ndarray | None) -> tuple[np.ndarray, float, int]:
+            kept = error if marked is None or lag_error is None else \
+                np.where(marked, lag_error, error)
+            return (kept, *policy.ratio(kept, values, h, marked))
+
+        error, ratio, i = judged(lagging)
+        if lag_error is not None and policy.global_error:  # without a share a lag is met
+            scaled = np.abs(error) / policy.scale(values)  # like any error; a noise floor
+            if policy.floor > 0.0:                          # is no step's error (noise)
+                scaled = np.maximum(scaled - policy.floor, 0.0)
+            rerun = finder.judge(t, h, scaled, policy.ratios(error, values, h, lagging), ratio,
+                                 policy.target, policy.hmin)
+            if rerun is not None:  # the same state stepped shorter: is it a lag?
                 ctx.restore(token)
-                return Attempt(y, False, judged, ratio)
-            if judged is not None:
-                lagging = judged
-                ratio, i = policy.ratio(error, values, h, lagging)
+                return Attempt(y, False, rerun, ratio)
+            if finder.marked is not lagging:
+                lagging = finder.marked
+                error, ratio, i = judged(lagging)
         if ratio > 1.0 and policy.noise(t, h, error, values):
             ratio, i = policy.ratio(error, values, h, lagging)  # above the floor just found
         accepted = ratio <= 1.0
@@ -502,9 +517,6 @@ class Doubling(_PolicyController):
         extra = ((t + 0.5 * h, y_half),)
         y = ctx.step(t + 0.5 * h, 0.5 * h, extra=extra)
         error = (y_full - y) / (2.0 ** (q + 1) - 1.0)
-        lagging = self._lagging.mask
-        if lagging is not None:  # a lag of h against one of h/2: the difference is the half's
-            error = np.where(lagging, y_full - y, error)
         missed, _ = ctx.defect()
         # an iterated step (strong coupling) ends on its own end values: what is left of its
         # inputs' miss is the iteration's tolerance, nothing a history failed to foretell
@@ -517,7 +529,11 @@ class Doubling(_PolicyController):
             bound = (q + 2) * (y_c - y)
             error = np.where(np.abs(bound) > np.abs(error), bound, error)
             y = y_c
-        return self._decide(ctx, token, t, h, y, error, y, q + 1, ctx.names, lags=True)
+        # a lag of h against one of h/2: the whole difference is the half's lag (a lag's
+        # second half misses its partners as if they jumped, so the check above fires on it
+        # too; a jump read as a lag is caught by the re-run of the next step, lag.py)
+        return self._decide(ctx, token, t, h, y, error, y, q + 1, ctx.names,
+                            lag_error=y_full - y)
 
 
 def _shrink(times: list[float], t: float, h: float, q: int) -> float:

@@ -1,5 +1,5 @@
-"""Outputs whose error is a lag of the step, not a contribution to a sum: recognised from a
-descent of the step that the error control cannot end.
+"""Outputs whose error is a lag of the step, not a contribution to a sum: recognised from the
+order of the error in the step, read from one state stepped with two steps.
 
 A global error target shares ``tol`` over the run in proportion to each step's length, which
 assumes every step adds its local error to the global one: a coupling error made over a step
@@ -12,48 +12,52 @@ its inputs were at ``t``: its output lags its input by the step. Step doubling s
 Against a share that falls like ``h`` its ratio stays where it is however short the step, and
 the control shrinks the step by the same factor on every accepted step down to ``hmin``: the
 run ends failed where a fixed step of 0.01 s delivers the tolerance (an oscillator fed back
-through such a gain, tol 1e-3: the step fell from 7e-3 to 3e-15 s in 60 accepted steps, the
-gain's output error at a constant 0.24 of its share throughout).
+through such a gain, tol 1e-3: the step fell by 12 % on each of about 215 accepted steps, down
+to 3e-15 s, the gain's output error at a constant 0.24 of its share throughout).
 
 Such an error does not add up: the next step's output is computed afresh from the next input,
 and the lag the step leaves is what the output is wrong by *now*, as long as the step lasts.
-So it is met against the tolerance itself, not against a share of it (as the multi-rate master
-meets a held input's lag, :meth:`cosimstep.multirate.Multirate.hold_lag`), and it enters the
-run's estimate as a level, not as a term of the sum. What it does to the sub-models that read
-the lagging output is their own error, which falls faster and is summed as before.
+So it is met against the whole budget, as the sum of the others is (rejected past
+``cancellation × tol``, aimed at ``target ×`` that, 0.5 × tol by default), not against a share
+of it (as the multi-rate master meets a held input's lag,
+:meth:`cosimstep.multirate.Multirate.hold_lag`), and it enters the run's estimate as a level,
+not as a term of the sum. What it does to the sub-models that read the lagging output is their
+own error, which falls faster and is summed as before.
 
-Recognised by the order of the error in the step, measured where the same state is stepped
-with two different steps (the order then read exactly: nothing else changed between them):
+Which outputs lag is read from the order of their error in the step where the same state is
+stepped with two steps (nothing else changed between them), and decided only by a re-run of an
+*accepted* step at a quarter of its length (:data:`PROBE`), where no jump can hide:
 
-- rejected attempts from one time, each shorter than the last, down by :data:`DESCENT`. But a
-  jump a partner makes just after the step's start, which the master was not told of, leaves
-  its receiver an error in proportion to the step too, once. So one such reading only lets the
-  attempt be judged as a lag; the output is taken as lagging for the rest of the run when a
-  second reading, from a later time, says so again (a lag recurs on every step, a jump does
-  not). A PI controller's proportional part computed from the held error: the first step of
-  a plant and such a controller, tol 1e-3, had crawled on at steps of 6e-9 s (600,000 calls
-  in 20 s for 0.001 s of a 5 s run; the estimate read as a noise floor,
-  :meth:`~cosimstep.controllers.base.StepPolicy.noise`).
-- now and then (after :data:`EVERY` accepted steps, then after twice as many as before each
-  time the re-run found no lag: a lag belongs to a sub-model and shows early) an accepted step
-  whose ratio is near the aim is re-run from the same state at a quarter of its length
-  (:data:`PROBE`). A lag whose
-  ratio happens to sit just below the aim moves the step neither way: the ratio does not
-  answer the step, so the control creeps (a stiff fast partition, slaved to its held input,
-  lags it like a gain: the suite's boundary layer with held inputs at tol 1e-3 crept at steps
-  of 7e-5 to 1.2e-4 s with its ratio at 0.09–0.099, 288,000 calls for 0.005 × tol). The re-run
-  is accepted in the step's place.
+- rejected attempts from one time, each shorter than the last, down by :data:`DESCENT`, whose
+  error fell no faster than ``h^ORDER``, let the attempt be judged as a lag (:attr:`~
+  LaggingOutputs.provisional`), and the next accepted step is re-run to decide. A jump a partner
+  makes just after the step's start, which the master was not told of, reads the same from the
+  rejections, once: marked on two such readings, an integrator fed a square wave with two
+  unannounced jumps was met against the whole budget for the rest of the run (1.5 × tol where
+  it had 0.46 ×); the re-run past the jump reads the integrator's order 2. A PI controller's
+  proportional part computed from the held error: every attempt of the first step of a lag plant
+  and such a controller, tol 1e-3, was rejected at the same ratio until the estimate read as a
+  noise floor (:meth:`~cosimstep.controllers.base.StepPolicy.noise`), then the run crawled at
+  6e-9 s (600,000 calls in 20 s for 0.001 s of 5 s);
 - a *descent* of accepted steps — consecutive accepted steps, each shorter than the one before,
   each with its ratio above the aim — that shrank the step by :data:`DESCENT` while an
-  output's error fell no faster than ``h^ORDER`` raises the suspicion, no more: a coefficient
-  that rises while the step falls reads the same (the split double pendulum with held inputs,
-  from rest: its ratios held at 1.03–1.2 × the aim through a tenfold descent, error against
-  step of order 1 over it, while at one time its error falls like ``h²``). The step is then
-  re-run from the same state at a quarter of its length (:data:`PROBE`), and only that
-  comparison decides; the descent, spread over time, already shows a lag that recurs.
+  output's error fell no faster than ``h^ORDER`` asks for the re-run: a coefficient that rises
+  while the step falls reads the same (the split double pendulum with held inputs, from rest:
+  its ratios at 1.03–1.2 × the aim through a tenfold descent, its error against the step of
+  order 1 over it, while at one time its error falls like ``h²``);
+- and now and then, after :data:`EVERY` accepted steps, then after twice as many as before each
+  time the re-run found no lag (a lag belongs to a sub-model and shows early), an accepted step
+  whose ratio is near the aim: a lag whose ratio sits just below the aim moves the step
+  neither way (the ratio does not answer the step), so the control creeps (the suite's boundary
+  layer with held inputs at tol 1e-2, whose stiff fast partition at steps long against its time
+  constant is slaved to its held input and lags it like a gain: 57,252 calls for 0.066 × tol).
 
-A coupling error of the lowest order the controllers estimate falls like ``h²`` or faster,
-twice as fast in the logarithm as a lag's, so :data:`ORDER` is the geometric middle.
+A re-run reads every output it was asked about: an output marked before whose error now falls
+like one that adds up is given up. The re-run is accepted in the step's place; it is counted
+as a rejected attempt. A coupling error of the lowest order the controllers estimate falls like
+``h²`` or faster, twice as fast in the logarithm as a lag's, so :data:`ORDER` is the geometric
+middle; an error that does not fall with the step at all (:data:`FLAT`) is noise, the floor's
+business.
 """
 
 from __future__ import annotations
@@ -80,60 +84,95 @@ ORDER = 1.5
 """An output whose error fell no faster than ``h^ORDER`` lags: the geometric middle between a
 lag (order 1) and the lowest-order error that adds up (order 2)."""
 
+FLAT = 0.5
+"""An error that falls slower than ``h^FLAT`` does not come from the step at all: sub-model
+noise, a floor (:meth:`~cosimstep.controllers.base.StepPolicy.noise` takes it), not a lag."""
+
 BINDING = 0.5
 """Only the outputs whose ratio to the allowed error is at least this share of the largest are
 read: those that drive the step (the others may fall at any rate without holding it down)."""
 
 
 class LaggingOutputs:
-    """The outputs recognised as lagging (:attr:`mask`), from the errors of the attempts the
-    controller judges (see the module): :meth:`judge` on every attempt."""
+    """The outputs recognised as lagging (:attr:`mask`) and those only read so from rejections
+    (:attr:`provisional`), from the errors of the attempts the controller judges (see the
+    module): :meth:`judge` on every attempt, :meth:`event` at an event."""
 
     def __init__(self) -> None:
         self.mask: np.ndarray | None = None
+        self.provisional: np.ndarray | None = None  # read from rejections, to be confirmed
+        self._confirm = False  # re-run the next accepted step to confirm `provisional`
+        self._gap = EVERY  # accepted steps until the next periodic re-run
+        self.event()
+
+    def event(self) -> None:
+        """An event (and a run's start): what was measured across it is no order, and a
+        reading not yet confirmed belonged to the dynamics before it."""
         self._start: tuple[float, np.ndarray] | None = None  # an accepted descent's first step
         self._last = math.inf  # the last accepted step's length
         self._from: tuple[float, float, np.ndarray] | None = None  # t, h, errors: rejections
         self._shortest = math.inf  # the last rejected attempt's length
-        self._read: tuple[float, np.ndarray] | None = None  # the last reading from rejections
         self._probe: tuple[float, float, np.ndarray, np.ndarray] | None = None  # t, h, errors,
-        # the suspected outputs: a step re-run shorter to read the order
+        # the outputs to read: a step re-run shorter to read the order
         self._since = 0  # accepted steps since the last re-run
-        self._gap = EVERY  # accepted steps until the next
+        self.provisional, self._confirm = None, False
 
     def reset(self) -> None:
         """A run starts: nothing recognised."""
         self.__init__()  # type: ignore[misc]
 
+    @property
+    def marked(self) -> np.ndarray | None:
+        """The outputs an attempt is judged with as lagging: recognised, or read so from
+        rejections and not yet confirmed (``None``: none)."""
+        if self.provisional is None:
+            return self.mask
+        return self.provisional if self.mask is None else self.mask | self.provisional
+
     def judge(self, t: float, h: float, scaled: np.ndarray, ratios: np.ndarray,
-              ratio: float, aim: float) -> np.ndarray | float | None:
+              ratio: float, aim: float, hmin: float) -> float | None:
         """An attempt from ``t`` of ``h``, its errors ``scaled`` (in units of the norm) and
         their ``ratios`` to what is allowed, its ``ratio`` (above 1: rejected) and the aim of
-        the control. Returns the outputs to judge it again with as lagging (an array), the
-        step to re-run it with to read the order (a float), or ``None``."""
-        rejected, above_aim = ratio > 1.0, ratio > aim
+        the control. Returns the step to re-run it with from the same state to read the
+        order, or ``None``; :attr:`marked` says how to judge it."""
         probe, self._probe = self._probe, None
         if probe is not None and probe[0] == t and h < probe[1]:
-            found = _lagging(probe[2], scaled, ratios, probe[1] / h)
-            self._start, self._last = None, math.inf
-            if found is not None and (found & probe[3]).any():
-                found = found & probe[3]
-                self.mask = found if self.mask is None else self.mask | found
-                return self.mask
-            self._gap *= 2
+            self._read_probe(probe, scaled, h)
             return None
-        if rejected:
-            return self._rejected(t, h, scaled, ratios)
+        if ratio > 1.0:
+            self._rejected(t, h, scaled, ratios)
+            return None
         self._from, self._shortest = None, math.inf
-        suspect = self._accepted(h, scaled, ratios, above_aim)
+        suspect = self._accepted(h, scaled, ratios, ratio > aim)
         self._since += 1
-        if suspect is None and self._since >= self._gap and ratio >= BINDING * aim:
+        if self._confirm and self.provisional is not None:
+            suspect = self.provisional
+        elif suspect is None and self._since >= self._gap and ratio >= BINDING * aim:
             suspect = ratios >= BINDING * float(ratios.max())  # what drives the step now
-        if suspect is None:
+        if suspect is None or h / PROBE < hmin:
             return None
-        self._since = 0
+        self._since, self._confirm = 0, False
         self._probe = (t, h, scaled.copy(), suspect)
         return h / PROBE
+
+    def _read_probe(self, probe: tuple[float, float, np.ndarray, np.ndarray],
+                    scaled: np.ndarray, h: float) -> None:
+        """The re-run of a step at a quarter of its length: the outputs read lag or do not,
+        whatever they were taken for (a reading from rejections confirmed or dropped, a
+        recognised lag that no longer reads so given up)."""
+        _, h0, e0, read = probe
+        read = read & (e0 > 0.0) & (scaled > 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            order = np.log(e0 / scaled) / math.log(h0 / h)
+        lag, adds_up = read & (order >= FLAT) & (order <= ORDER), read & (order > ORDER)
+        mask = lag if self.mask is None else (self.mask | lag) & ~adds_up
+        self.mask = mask if mask.any() else None
+        if self.provisional is not None:
+            left = self.provisional & ~probe[3]
+            self.provisional = left if left.any() else None
+        if not lag.any():
+            self._gap *= 2
+        self._start, self._last = None, math.inf
 
     def _accepted(self, h: float, scaled: np.ndarray, ratios: np.ndarray,
                   above_aim: bool) -> np.ndarray | None:
@@ -149,27 +188,24 @@ class LaggingOutputs:
         self._start = (h, scaled.copy())
         return _lagging(e0, scaled, ratios, h0 / h)
 
-    def _rejected(self, t: float, h: float, scaled: np.ndarray,
-                  ratios: np.ndarray) -> np.ndarray | None:
-        """A rejected attempt: the outputs to judge it again with as lagging (those read so
-        now, and those recognised), or ``None`` when this attempt reads none."""
+    def _rejected(self, t: float, h: float, scaled: np.ndarray, ratios: np.ndarray) -> None:
+        """A rejected attempt: a decade of them from one time whose error fell like a lag's
+        lets the attempt be judged as a lag (:attr:`provisional`) until the next accepted step,
+        re-run, says whether it is one."""
         self._start, self._last = None, math.inf
         if self._from is None or self._from[0] != t or not h < self._shortest:
             self._from, self._shortest = (t, h, scaled.copy()), h
-            return None
+            return
         self._shortest = h
         _, h0, e0 = self._from
         if h0 / h < DESCENT:
-            return None
+            return
         self._from = (t, h, scaled.copy())
         lagging = _lagging(e0, scaled, ratios, h0 / h)
-        if lagging is None:
-            return None
-        earlier, self._read = self._read, (t, lagging)
-        if earlier is not None and earlier[0] != t and (earlier[1] & lagging).any():
-            again = earlier[1] & lagging  # read so at two times: a lag, not a jump
-            self.mask = again if self.mask is None else self.mask | again
-        return lagging if self.mask is None else lagging | self.mask
+        if lagging is not None:
+            self.provisional = lagging if self.provisional is None \
+                else self.provisional | lagging
+            self._confirm = True
 
 
 def _lagging(before: np.ndarray, after: np.ndarray, ratios: np.ndarray,
@@ -180,5 +216,5 @@ def _lagging(before: np.ndarray, after: np.ndarray, ratios: np.ndarray,
     binding = ratios >= BINDING * float(ratios.max())
     with np.errstate(divide="ignore", invalid="ignore"):
         order = np.log(before / after) / math.log(shrink)
-    lagging = binding & (before > 0.0) & (after > 0.0) & (order <= ORDER)
+    lagging = binding & (before > 0.0) & (after > 0.0) & (order >= FLAT) & (order <= ORDER)
     return lagging if lagging.any() else None
