@@ -294,3 +294,35 @@ def test_a_stiff_partition_holding_its_input_lags_it_at_long_steps() -> None:
     assert 0.1 <= result.error.max_scaled / 1e-2 <= 10
     assert 0.2 <= result.error_estimate / result.error.max_scaled <= 5
     assert result.calls_spent <= 1.2 * 1122
+
+
+def test_a_reading_lapses_where_no_shorter_rerun_is_possible() -> None:
+    """With the next accepted step shorter than four times hmin there is no re-run to confirm a
+    reading from rejections: it lapses instead of holding for the rest of the run."""
+    finder = LaggingOutputs()
+    _rejections(finder, 0.0, lambda h: np.array([1e-3 * h ** 3, 1e-2 * h]))
+    assert finder.provisional is not None
+    assert finder.judge(0.04, 1e-10, np.array([1e-15, 1e-12]), np.array([0.01, 0.05]), 0.05,
+                        0.1, 1e-10) is None
+    assert finder.marked is None
+
+
+def test_an_event_clears_what_was_read_across_it() -> None:
+    """A reading from rejections and a re-run asked for before an event are dropped by it; a
+    lag recognised before it is kept (it belongs to a sub-model, not to the dynamics)."""
+    finder = LaggingOutputs()
+    finder.mask = np.array([True, False])
+    _rejections(finder, 0.0, lambda h: np.array([1e-5 * h, 1e-2 * h]))
+    finder.event()
+    assert finder.provisional is None and finder.mask.tolist() == [True, False]
+    assert finder.judge(0.04, 0.1, np.array([1e-6, 1e-3]), np.array([0.01, 0.05]), 0.05, 0.1,
+                        1e-10) is None  # no re-run left to ask for
+
+
+def test_an_error_that_does_not_fall_with_the_step_is_noise_not_a_lag() -> None:
+    """An error that stays the same however short the step (a sub-model's noise) reads order 0:
+    it is the noise floor's, not a lag's."""
+    finder = LaggingOutputs()
+    for t in (0.0, 0.5):
+        _rejections(finder, t, lambda h: np.array([1e-3 * h ** 3, 1e-2]))
+    assert finder.marked is None

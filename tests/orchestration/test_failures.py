@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import sys
 import time
 
 import numpy as np
@@ -70,6 +71,19 @@ def test_a_sub_models_exit_under_an_adaptive_controller_ends_its_run(timeout):
     r = simulate(system, 1.0, make_controller("pc", tol=1e-3), options)
     assert r.status == "failed" and "SystemExit: 3" in r.message and "'clock'" in r.message
     assert r.t_end == pytest.approx(0.5, abs=1e-6) and r.steps_accepted > 0
+
+
+def test_a_sub_models_exit_in_initialize_ends_its_run():
+    """The guarded calls outside a step (initialize, get_outputs) take sys.exit() as a failure
+    too."""
+    class ExitingClock(Clock):
+        def initialize(self, t0: float) -> None:
+            sys.exit(4)
+
+    system = System().add("clock", ExitingClock()).add("sink", Integrator(unit="s"))
+    system.connect("clock.time", "sink.u")
+    r = simulate(system, 1.0, Fixed(0.1))
+    assert r.status == "failed" and "'clock'" in r.message and "SystemExit: 4" in r.message
 
 
 def test_failure_can_raise():

@@ -192,11 +192,11 @@ class _PolicyController(Controller):
         the estimate can see a lag of the step (a predictor and a corrector that start from
         the same inputs cannot), so lagging outputs are looked for."""
         policy, finder = self.policy, self._lagging
-        lagging = finder.marked
+        lagging, estimated = finder.marked, error
 
         def judged(marked: np.ndarray | None) -> tuple[np.ndarray, float, int]:
-            kept = error if marked is None or lag_error is None else \
-                np.where(marked, lag_error, error)
+            kept = estimated if marked is None or lag_error is None else \
+                np.where(marked, lag_error, estimated)
             return (kept, *policy.ratio(kept, values, h, marked))
 
         error, ratio, i = judged(lagging)

@@ -53,11 +53,13 @@ stepped with two steps (nothing else changed between them), and decided only by 
   constant is slaved to its held input and lags it like a gain: 57,252 calls for 0.066 × tol).
 
 A re-run reads every output it was asked about: an output marked before whose error now falls
-like one that adds up is given up. The re-run is accepted in the step's place; it is counted
-as a rejected attempt. A coupling error of the lowest order the controllers estimate falls like
-``h²`` or faster, twice as fast in the logarithm as a lag's, so :data:`ORDER` is the geometric
-middle; an error that does not fall with the step at all (:data:`FLAT`) is noise, the floor's
-business.
+like one that adds up is given up. The re-run is then judged as any attempt (and the attempt it
+repeats is counted as a rejected one). Where the step is too short for a re-run above
+``hmin``, a reading from rejections lapses unconfirmed.
+
+A coupling error of the lowest order the controllers estimate falls like ``h²`` or faster,
+twice as fast in the logarithm as a lag's, so :data:`ORDER` is the geometric middle; an error
+that does not fall with the step at all (:data:`FLAT`) is noise, the floor's business.
 """
 
 from __future__ import annotations
@@ -112,8 +114,9 @@ class LaggingOutputs:
         self._last = math.inf  # the last accepted step's length
         self._from: tuple[float, float, np.ndarray] | None = None  # t, h, errors: rejections
         self._shortest = math.inf  # the last rejected attempt's length
-        self._probe: tuple[float, float, np.ndarray, np.ndarray] | None = None  # t, h, errors,
-        # the outputs to read: a step re-run shorter to read the order
+        # a step re-run shorter to read the order: t, h, errors, the outputs to read, and
+        # whether it was a periodic one (only those lengthen the gap to the next)
+        self._probe: tuple[float, float, np.ndarray, np.ndarray, bool] | None = None
         self._since = 0  # accepted steps since the last re-run
         self.provisional, self._confirm = None, False
 
@@ -145,22 +148,26 @@ class LaggingOutputs:
         self._from, self._shortest = None, math.inf
         suspect = self._accepted(h, scaled, ratios, ratio > aim)
         self._since += 1
+        periodic = False
         if self._confirm and self.provisional is not None:
             suspect = self.provisional
         elif suspect is None and self._since >= self._gap and ratio >= BINDING * aim:
-            suspect = ratios >= BINDING * float(ratios.max())  # what drives the step now
-        if suspect is None or h / PROBE < hmin:
+            suspect, periodic = ratios >= BINDING * float(ratios.max()), True  # what drives
+        if suspect is not None and h / PROBE < hmin:  # no shorter step to read the order with:
+            self.provisional, self._confirm = None, False  # a reading left unconfirmed lapses
+            return None
+        if suspect is None:
             return None
         self._since, self._confirm = 0, False
-        self._probe = (t, h, scaled.copy(), suspect)
+        self._probe = (t, h, scaled.copy(), suspect, periodic)
         return h / PROBE
 
-    def _read_probe(self, probe: tuple[float, float, np.ndarray, np.ndarray],
+    def _read_probe(self, probe: tuple[float, float, np.ndarray, np.ndarray, bool],
                     scaled: np.ndarray, h: float) -> None:
         """The re-run of a step at a quarter of its length: the outputs read lag or do not,
         whatever they were taken for (a reading from rejections confirmed or dropped, a
         recognised lag that no longer reads so given up)."""
-        _, h0, e0, read = probe
+        _, h0, e0, read, periodic = probe
         read = read & (e0 > 0.0) & (scaled > 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             order = np.log(e0 / scaled) / math.log(h0 / h)
@@ -170,7 +177,7 @@ class LaggingOutputs:
         if self.provisional is not None:
             left = self.provisional & ~probe[3]
             self.provisional = left if left.any() else None
-        if not lag.any():
+        if periodic and not lag.any():
             self._gap *= 2
         self._start, self._last = None, math.inf
 
