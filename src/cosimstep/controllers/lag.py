@@ -29,16 +29,16 @@ stepped with two steps (nothing else changed between them), and decided only by 
 *accepted* step at a quarter of its length (:data:`PROBE`), where no jump can hide:
 
 - rejected attempts from one time, each shorter than the last, down by :data:`DESCENT`, whose
-  error fell no faster than ``h^ORDER``, let the attempt be judged as a lag (:attr:`~
-  LaggingOutputs.provisional`), and the next accepted step is re-run to decide. A jump a partner
-  makes just after the step's start, which the master was not told of, reads the same from the
-  rejections, once: marked on two such readings, an integrator fed a square wave with two
-  unannounced jumps was met against the whole budget for the rest of the run (1.5 × tol where
-  it had 0.46 ×); the re-run past the jump reads the integrator's order 2. A PI controller's
+  error fell no faster than ``h^ORDER``, let the attempt be judged as a lag
+  (:attr:`LaggingOutputs.provisional`), and the next accepted step is re-run to decide. A jump a
+  partner makes just after the step's start, which the master was not told of, reads the same from
+  the rejections, once: marked on two such readings, an integrator fed a square wave with two
+  unannounced jumps was met against the whole budget for the rest of the run (1.5 × tol where it
+  had 0.46 ×); the re-run past the jump reads the integrator's order 2. A PI controller's
   proportional part computed from the held error: every attempt of the first step of a lag plant
   and such a controller, tol 1e-3, was rejected at the same ratio until the estimate read as a
-  noise floor (:meth:`~cosimstep.controllers.base.StepPolicy.noise`), then the run crawled at
-  6e-9 s (600,000 calls in 20 s for 0.001 s of 5 s);
+  noise floor (:meth:`~cosimstep.controllers.base.StepPolicy.noise`), then the run crawled at 6e-9
+  s (600,000 calls in 20 s for 0.001 s of 5 s);
 - a *descent* of accepted steps — consecutive accepted steps, each shorter than the one before,
   each with its ratio above the aim — that shrank the step by :data:`DESCENT` while an
   output's error fell no faster than ``h^ORDER`` asks for the re-run: a coefficient that rises
