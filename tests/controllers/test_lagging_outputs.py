@@ -2,8 +2,9 @@
 feedthrough declared) lag their inputs by the step: their error falls only like ``h``, and a
 global error target, whose share per step also falls like ``h``, shrank the step of the default
 controller down to ``hmin`` (or crawled on at a noise floor). Step doubling sees the lag, the
-controller recognises it (:mod:`cosimstep.controllers.lag`) and meets it against the tolerance
-itself. Measured against the exact monolithic solutions of the coupled systems."""
+controller recognises it (:mod:`cosimstep.controllers.lag`) and meets it against the whole
+budget, not a share of it. Measured against the exact monolithic solutions of the coupled
+systems."""
 
 from __future__ import annotations
 
